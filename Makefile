@@ -1,0 +1,31 @@
+# GL-DT: the two commands of the README. Each one does all set-up first (idempotent, seconds on
+# a set-up machine) via scripts/setup.sh.
+SHELL := /bin/bash
+.DEFAULT_GOAL := help
+VENV_PY := .venv/bin/python
+PYTEST_ARGS ?=
+
+.PHONY: help setup demo test test-slow test-all clean
+
+help:
+	@echo "make demo       set up, then replay the bundled sample through GL-DT and print what it saw"
+	@echo "make test       set up, then run the default test suite (excludes slow suites)"
+	@echo "make test-slow  set up, then run only the slow suites (training, soak, big benchmarks)"
+
+setup:
+	@bash scripts/setup.sh
+
+demo: setup
+	@bash scripts/with_ros_env.sh $(VENV_PY) -m gldt_core.demo
+
+test: setup
+	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+
+test-slow: setup
+	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest -m "slow" $(PYTEST_ARGS)
+
+test-all: setup
+	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest $(PYTEST_ARGS)
+
+clean:
+	rm -rf build install log .setup-stamps

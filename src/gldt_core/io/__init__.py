@@ -1,0 +1,1 @@
+"""File formats GL-DT reads and writes (MOTChallenge text, rosbag2 MCAP, ...)."""

@@ -1,0 +1,127 @@
+"""What every GL-DT node shares: schema-declared parameters, diagnostics, one-line errors.
+
+Each node processes messages in callbacks; a bad message must cost one log line and that message
+only, never the node. :meth:`GldtNode.guarded` wraps a callback so that documented errors
+(``ValueError`` and its subclasses such as ``ImageDecodeError``) are logged once per kind and
+counted as dropped frames in the node's ``/diagnostics`` status.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+from typing import Any, Callable
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+
+from gldt_ros import topics
+from gldt_ros.params import SCHEMA, ParamSpec
+
+
+class GldtNode(Node):
+    """Base class: declares the node's parameters from :data:`SCHEMA` and reports diagnostics."""
+
+    def __init__(self, name: str, **kwargs: Any) -> None:
+        super().__init__(name, **kwargs)
+        self._specs = {spec.name: spec for spec in SCHEMA[name]}
+        for spec in SCHEMA[name]:
+            self.declare_parameter(spec.name, spec.default, _descriptor(spec))
+            spec.validate(self.get_parameter(spec.name).value)
+        self._arrivals: deque[float] = deque(maxlen=120)
+        self._processing: deque[float] = deque(maxlen=120)
+        self.frames_in = 0
+        self.frames_dropped = 0
+        self._warned: set[str] = set()
+        self._diagnostics = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        self.create_timer(float(self.param("diagnostics_period")), self._publish_diagnostics)
+
+    def param(self, name: str) -> Any:
+        """Current value of a schema parameter."""
+        return self.get_parameter(name).value
+
+    def guarded(self, callback: Callable[[Any], None], what: str) -> Callable[[Any], None]:
+        """Wrap a subscription callback: time it, count it, log documented errors in one line."""
+
+        def wrapper(message: Any) -> None:
+            start = time.perf_counter()
+            self.frames_in += 1
+            self._arrivals.append(time.monotonic())
+            try:
+                callback(message)
+            except ValueError as error:
+                self.frames_dropped += 1
+                self.get_logger().error(f"dropped {what}: {error}")
+            finally:
+                self._processing.append(time.perf_counter() - start)
+
+        return wrapper
+
+    def warn_once(self, key: str, text: str) -> None:
+        """Log a warning the first time ``key`` is seen (e.g. an unexpected encoding)."""
+        if key not in self._warned:
+            self._warned.add(key)
+            self.get_logger().warning(text)
+
+    def _publish_diagnostics(self) -> None:
+        rate = 0.0
+        if len(self._arrivals) >= 2 and self._arrivals[-1] > self._arrivals[0]:
+            rate = (len(self._arrivals) - 1) / (self._arrivals[-1] - self._arrivals[0])
+        mean_ms = 1000.0 * sum(self._processing) / len(self._processing) if self._processing else 0.0
+        status = DiagnosticStatus(
+            level=DiagnosticStatus.OK if self.frames_dropped == 0 else DiagnosticStatus.WARN,
+            name=f"gldt/{self.get_name()}",
+            hardware_id=self.get_namespace(),
+            message="ok" if self.frames_dropped == 0 else f"{self.frames_dropped} input(s) dropped",
+            values=[
+                KeyValue(key="input_rate_hz", value=f"{rate:.2f}"),
+                KeyValue(key="processing_time_ms", value=f"{mean_ms:.2f}"),
+                KeyValue(key="inputs", value=str(self.frames_in)),
+                KeyValue(key="dropped", value=str(self.frames_dropped)),
+            ],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self.get_clock().now().to_msg()
+        self._diagnostics.publish(array)
+
+
+def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
+    descriptor = ParameterDescriptor(description=spec.description)
+    if spec.choices:
+        descriptor.additional_constraints = "one of: " + ", ".join(spec.choices)
+    if isinstance(spec.default, bool):
+        return descriptor
+    if isinstance(spec.default, int) and spec.minimum is not None:
+        descriptor.integer_range = [IntegerRange(from_value=int(spec.minimum), to_value=int(spec.maximum), step=1)]
+    elif isinstance(spec.default, float) and spec.minimum is not None:
+        descriptor.floating_point_range = [
+            FloatingPointRange(from_value=float(spec.minimum), to_value=float(spec.maximum), step=0.0)
+        ]
+    return descriptor
+
+
+def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Standard ``main``: init, spin until Ctrl-C or shutdown, clean up; returns an exit code.
+
+    A node that cannot start (missing model, bad parameter) logs one line and exits with 1.
+    """
+    import rclpy
+    from rclpy.executors import ExternalShutdownException
+
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = node_factory()
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ValueError, FileNotFoundError) as error:
+        print(f"[gldt] cannot start: {error}", flush=True)
+        return 1
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return 0

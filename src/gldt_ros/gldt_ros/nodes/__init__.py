@@ -1,0 +1,1 @@
+"""One module per node; each exposes ``create_node(cli_args)`` and ``main()``."""

@@ -1,0 +1,106 @@
+"""frame_pair_buffer: the only node that holds full-resolution camera frames.
+
+It decodes camera images (``sensor_msgs/Image`` in any supported encoding, or JPEG/PNG
+``CompressedImage``), keeps the current and previous frame, and announces each frame to the
+tracker with a pixel-free ``FrameTick``. When the mode scheduler answers with its decision for
+that frame, it sends either the resized frame pair to the global detector (GLOBAL) or the ROI
+crops to the local detector (LOCAL). Full frames therefore never cross a topic.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Any
+
+import numpy as np
+from gldt_msgs.msg import FramePair, FrameTick, RoiCrops, SchedulerState
+from sensor_msgs.msg import CompressedImage, Image
+
+from gldt_ros import qos, topics
+from gldt_ros.convert import bgr_to_image, image_to_bgr, msgs_to_rois
+from gldt_ros.node_base import GldtNode, run_node
+
+#: Frames kept while waiting for the scheduler's answer (the answer normally comes within one).
+PENDING_FRAMES = 8
+
+
+class FramePairBuffer(GldtNode):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("frame_pair_buffer", **kwargs)
+        from gldt_core.detect.pairing import FramePairPreparer
+
+        self.preparer = FramePairPreparer.from_params(int(self.param("pair_width")), int(self.param("pair_height")))
+        self._frames: OrderedDict[int, tuple[Any, np.ndarray]] = OrderedDict()
+        self._index = 0
+        self._size: tuple[int, int] | None = None
+        self._previous_index: int | None = None
+        camera_qos = qos.camera_qos(self.param("camera_qos"))
+        if self.param("image_transport") == "compressed":
+            self.create_subscription(CompressedImage, topics.IMAGE_COMPRESSED, self.guarded(self.on_image, "image"), camera_qos)
+        else:
+            self.create_subscription(Image, topics.IMAGE_RAW, self.guarded(self.on_image, "image"), camera_qos)
+        self.create_subscription(SchedulerState, topics.SCHEDULER_STATE, self.guarded(self.on_decision, "decision"), qos.RELIABLE)
+        self.ticks = self.create_publisher(FrameTick, topics.FRAME_TICKS, qos.RELIABLE)
+        self.pairs = self.create_publisher(FramePair, topics.FRAME_PAIRS, qos.RELIABLE)
+        self.crops = self.create_publisher(RoiCrops, topics.ROI_CROPS, qos.RELIABLE)
+
+    def on_image(self, message: Any) -> None:
+        frame = image_to_bgr(message)
+        size = (frame.shape[1], frame.shape[0])
+        if self._size is not None and size != self._size:
+            self.get_logger().warning(
+                f"frame size changed from {self._size[0]}x{self._size[1]} to {size[0]}x{size[1]}; "
+                "the next global frame is paired with itself"
+            )
+            self._frames.clear()
+            self._previous_index = None
+        self._size = size
+        index = self._index
+        self._index += 1
+        self._frames[index] = (message.header, frame)
+        while len(self._frames) > PENDING_FRAMES:
+            self._frames.popitem(last=False)
+        self.ticks.publish(FrameTick(header=message.header, frame_index=index, width=size[0], height=size[1]))
+
+    def on_decision(self, decision: SchedulerState) -> None:
+        index = int(decision.frame_index)
+        if index not in self._frames:
+            raise ValueError(f"scheduler decision for frame {index}, which is no longer buffered")
+        header, frame = self._frames[index]
+        previous = self._frames.get(self._previous_index, (None, frame))[1] if self._previous_index is not None else frame
+        if decision.mode == SchedulerState.MODE_GLOBAL:
+            prepared_previous, prepared_current, scale = self.preparer.prepare_pair(previous, frame)
+            self.pairs.publish(
+                FramePair(
+                    header=header,
+                    frame_index=index,
+                    previous_frame_index=self._previous_index if self._previous_index is not None else index,
+                    full_width=frame.shape[1],
+                    full_height=frame.shape[0],
+                    scale_x=scale[0],
+                    scale_y=scale[1],
+                    previous=bgr_to_image(prepared_previous, header),
+                    current=bgr_to_image(prepared_current, header),
+                )
+            )
+        else:
+            rois = msgs_to_rois(decision.rois)
+            crops = [bgr_to_image(np.ascontiguousarray(frame[y1:y2, x1:x2]), header) for x1, y1, x2, y2 in rois]
+            self.crops.publish(RoiCrops(header=header, frame_index=index, rois=list(decision.rois), crops=crops))
+        # Every frame becomes the next frame's predecessor, LD frames included, so the first GD
+        # frame after an LD stretch still gets a true consecutive pair.
+        for stale in [i for i in self._frames if i < index]:
+            del self._frames[stale]
+        self._previous_index = index
+
+
+def create_node(cli_args: list[str] | None = None) -> FramePairBuffer:
+    return FramePairBuffer(cli_args=cli_args)
+
+
+def main() -> int:
+    return run_node(create_node)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,112 @@
+"""jptrack_tracker: JPTrack on the detections of each frame, publishing ``/gldt/tracks``.
+
+Besides the tracks it answers every ``FrameTick`` with the Kalman predictions of the tracks
+worth an ROI at that frame's time (``TrackPredictions`` for the mode scheduler), using the same
+core function as the offline pipeline. With ``/camera/camera_info`` known, each track carries
+its bearing, bearing rate and a looming time-to-collision for avoidance planners.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from gldt_msgs.msg import DetectionArray, FrameTick, TrackArray, TrackPredictions
+from sensor_msgs.msg import CameraInfo
+from visualization_msgs.msg import MarkerArray
+
+from gldt_ros import qos, topics
+from gldt_ros.convert import detection_array_to_tracker_input, track_to_msg
+from gldt_ros.node_base import GldtNode, run_node
+
+
+def _stamp_seconds(stamp: Any) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+class TrackerNode(GldtNode):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("jptrack_tracker", **kwargs)
+        from gldt_core.pipeline.config import PipelineConfig, TrackerSettings
+        from gldt_core.pipeline.pipeline import build_tracker
+
+        self.config = PipelineConfig(tracker=TrackerSettings(name=self.param("tracker")))
+        self.tracker = build_tracker(self.config)
+        self.intrinsics = None
+        self._last_stamp: float | None = None
+        self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
+        self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
+        self.create_subscription(CameraInfo, topics.CAMERA_INFO, self.guarded(self.on_camera_info, "camera_info"), qos.camera_qos(self.param("camera_qos")))
+        self.track_publisher = self.create_publisher(TrackArray, topics.TRACKS, qos.RELIABLE)
+        self.prediction_publisher = self.create_publisher(TrackPredictions, "gldt/track_predictions", qos.RELIABLE)
+        self.marker_publisher = self.create_publisher(MarkerArray, topics.TRACK_MARKERS, qos.RELIABLE)
+
+    def on_camera_info(self, message: CameraInfo) -> None:
+        from gldt_core.geometry import PinholeIntrinsics
+
+        try:
+            self.intrinsics = PinholeIntrinsics.from_k(message.k)
+        except ValueError as error:
+            self.intrinsics = None
+            raise ValueError(f"camera_info ignored, bearings invalid until a good one arrives: {error}") from None
+
+    def on_tick(self, tick: FrameTick) -> None:
+        from gldt_core.pipeline.pipeline import stable_predictions
+
+        t = _stamp_seconds(tick.header.stamp)
+        if self._last_stamp is not None and t <= self._last_stamp:
+            self.get_logger().warning(
+                f"frame {tick.frame_index}: time went backwards ({self._last_stamp:.3f} s -> {t:.3f} s); tracker reset"
+            )
+            self.tracker.reset()
+            self._last_stamp = None
+        predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
+        by_id = {int(track.track_id): track for track in self.tracker.tracks}
+        messages = []
+        for x1, y1, x2, y2, track_id in predictions:
+            message = track_to_msg(by_id[int(track_id)])
+            message.center_x, message.center_y = (x1 + x2) / 2, (y1 + y2) / 2
+            message.width, message.height = x2 - x1, y2 - y1
+            messages.append(message)
+        self.prediction_publisher.publish(
+            TrackPredictions(header=tick.header, frame_index=tick.frame_index, width=tick.width, height=tick.height, tracks=messages)
+        )
+
+    def on_detections(self, message: DetectionArray) -> None:
+        from gldt_ros.planner import fill_planner_fields, markers_for
+
+        t = _stamp_seconds(message.header.stamp)
+        if self._last_stamp is not None and t <= self._last_stamp:
+            self.get_logger().warning(
+                f"frame {message.frame_index}: time went backwards ({self._last_stamp:.3f} s -> {t:.3f} s); tracker reset"
+            )
+            self.tracker.reset()
+        self._last_stamp = t
+        rows = np.asarray(self.tracker.update(detection_array_to_tracker_input(message), t), dtype=np.float64).reshape(-1, 6)
+        by_id = {int(track.track_id): track for track in self.tracker.tracks}
+        tracks = []
+        for x1, y1, x2, y2, track_id, score in rows:
+            track = by_id.get(int(track_id))
+            out = track_to_msg(track) if track is not None else None
+            if out is None:
+                continue
+            out.center_x, out.center_y, out.width, out.height = (x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1
+            out.score = float(score)
+            fill_planner_fields(out, track, self.intrinsics)
+            tracks.append(out)
+        array = TrackArray(header=message.header, frame_index=message.frame_index, tracks=tracks)
+        self.track_publisher.publish(array)
+        if bool(self.param("publish_markers")) and self.marker_publisher.get_subscription_count() > 0:
+            self.marker_publisher.publish(markers_for(array))
+
+
+def create_node(cli_args: list[str] | None = None) -> TrackerNode:
+    return TrackerNode(cli_args=cli_args)
+
+
+def main() -> int:
+    return run_node(create_node)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

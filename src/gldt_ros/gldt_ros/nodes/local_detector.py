@@ -1,0 +1,63 @@
+"""local_detector: the P2 local model on all ROI crops of a frame, as one batch.
+
+Crops arrive from ``frame_pair_buffer`` (only in LOCAL mode); detections are mapped back to
+full-frame pixels by each crop's ROI offset, and duplicates across overlapping ROIs are removed
+with the same NMS the offline pipeline uses.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from gldt_msgs.msg import Detection, DetectionArray, RoiCrops
+
+from gldt_ros import qos, topics
+from gldt_ros.convert import detections_to_msgs, image_to_bgr, msgs_to_rois
+from gldt_ros.node_base import GldtNode, run_node
+
+
+class LocalDetectorNode(GldtNode):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("local_detector", **kwargs)
+        from gldt_core.detect import LocalDetector
+
+        self.detector = LocalDetector(
+            model_path=self.param("model_path") or None,
+            providers=tuple(p.strip() for p in self.param("providers").split(",") if p.strip()),
+            score_threshold=float(self.param("score_threshold")),
+            num_threads=int(self.param("num_threads")) or None,
+        )
+        self.create_subscription(RoiCrops, topics.ROI_CROPS, self.guarded(self.on_crops, "ROI crops"), qos.RELIABLE)
+        self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
+
+    def on_crops(self, message: RoiCrops) -> None:
+        from gldt_core.pipeline.pipeline import merge_local_detections
+
+        start = time.perf_counter()
+        rois = msgs_to_rois(message.rois)
+        crops = [image_to_bgr(crop) for crop in message.crops]
+        raw = self.detector.detect_crops(crops, rois) if len(crops) else np.zeros((0, 7))
+        detections = merge_local_detections(raw)
+        self.publisher.publish(
+            DetectionArray(
+                header=message.header,
+                frame_index=message.frame_index,
+                mode=DetectionArray.MODE_LOCAL,
+                processing_time=time.perf_counter() - start,
+                detections=detections_to_msgs(detections, Detection.SOURCE_LOCAL),
+            )
+        )
+
+
+def create_node(cli_args: list[str] | None = None) -> LocalDetectorNode:
+    return LocalDetectorNode(cli_args=cli_args)
+
+
+def main() -> int:
+    return run_node(create_node)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

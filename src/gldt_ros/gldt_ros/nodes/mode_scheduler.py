@@ -1,0 +1,124 @@
+"""mode_scheduler: owns the GD/LD mode and the ROIs (paper: N_g, N_l, N_m; ROI manager).
+
+For every frame the tracker sends its predictions (``TrackPredictions``); the scheduler runs the
+core :class:`~gldt_core.pipeline.scheduler.ModeScheduler` on them and publishes its decision
+(``SchedulerState``, plus the ROIs alone on ``gldt/rois``). Detections coming back for a LOCAL
+frame are counted per ROI and reported to the state machine, which drives the N_m rule.
+
+In ``lockstep`` (deterministic replay) a new frame is only planned once the previous LOCAL
+frame's detections have been reported, so the decision never depends on message timing.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from gldt_msgs.msg import DetectionArray, RoiArray, SchedulerState, TrackPredictions
+
+from gldt_ros import qos, topics
+from gldt_ros.convert import rois_to_msgs
+from gldt_ros.node_base import GldtNode, run_node
+
+
+def _stamp_seconds(stamp: Time) -> float:
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
+class ModeSchedulerNode(GldtNode):
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("mode_scheduler", **kwargs)
+        from gldt_core.pipeline.roi import RoiParams
+        from gldt_core.pipeline.scheduler import ModeScheduler, SchedulerConfig
+
+        self.scheduler = ModeScheduler(
+            SchedulerConfig(
+                n_global=int(self.param("global_frames")),
+                n_local=int(self.param("local_frames")),
+                n_miss=int(self.param("miss_frames")),
+                roi=RoiParams(size=int(self.param("roi_size"))),
+            )
+        )
+        self.lockstep = bool(self.param("lockstep"))
+        self._size: tuple[int, int] | None = None
+        self._last_stamp: float | None = None
+        self._plans: dict[int, Any] = {}
+        self._awaiting_report: int | None = None
+        self._queue: deque[TrackPredictions] = deque()
+        self.create_subscription(TrackPredictions, "gldt/track_predictions", self.guarded(self.on_predictions, "predictions"), qos.RELIABLE)
+        self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
+        self.state_publisher = self.create_publisher(SchedulerState, topics.SCHEDULER_STATE, qos.RELIABLE)
+        self.latched_publisher = self.create_publisher(SchedulerState, "gldt/scheduler/latest", qos.LATCHED_STATE)
+        self.roi_publisher = self.create_publisher(RoiArray, topics.ROIS, qos.RELIABLE)
+
+    def on_predictions(self, message: TrackPredictions) -> None:
+        self._queue.append(message)
+        self._drain()
+
+    def _drain(self) -> None:
+        while self._queue and not (self.lockstep and self._awaiting_report is not None):
+            self._plan(self._queue.popleft())
+
+    def _plan(self, message: TrackPredictions) -> None:
+        stamp = _stamp_seconds(message.header.stamp)
+        size = (int(message.width), int(message.height))
+        if (self._size is not None and size != self._size) or (self._last_stamp is not None and stamp <= self._last_stamp):
+            self.get_logger().warning(f"frame {message.frame_index}: size change or time going backwards; scheduler reset")
+            self.scheduler.reset()
+            self._plans.clear()
+        self._size, self._last_stamp = size, stamp
+        predictions = np.array(
+            [(t.center_x - t.width / 2, t.center_y - t.height / 2, t.center_x + t.width / 2, t.center_y + t.height / 2, t.id) for t in message.tracks],
+            dtype=np.float64,
+        ).reshape(-1, 5)
+        plan = self.scheduler.plan_frame(stamp, size, predictions)
+        index = int(message.frame_index)
+        self._plans[index] = plan
+        for old in [i for i in self._plans if i < index - 30]:
+            del self._plans[old]
+        local = plan.mode.name == "LOCAL"
+        if local:
+            self._awaiting_report = index
+        state = self.scheduler.state
+        roi_msgs = rois_to_msgs(plan.rois, plan.layout.groups_ids() if hasattr(plan.layout, "groups_ids") else None)
+        decision = SchedulerState(
+            header=message.header,
+            frame_index=index,
+            mode=SchedulerState.MODE_LOCAL if local else SchedulerState.MODE_GLOBAL,
+            frames_in_mode=state.frames_in_mode,
+            frames_without_detection=state.frames_without_detection,
+            rois=roi_msgs,
+            reason=plan.reason,
+        )
+        self.state_publisher.publish(decision)
+        self.latched_publisher.publish(decision)
+        if local:
+            self.roi_publisher.publish(RoiArray(header=message.header, frame_index=index, rois=roi_msgs))
+
+    def on_detections(self, message: DetectionArray) -> None:
+        index = int(message.frame_index)
+        plan = self._plans.get(index)
+        if plan is None or message.mode != DetectionArray.MODE_LOCAL:
+            return
+        counts = np.zeros(len(plan.rois), dtype=np.int64)
+        for detection in message.detections:
+            if 0 <= detection.roi_index < len(counts):
+                counts[detection.roi_index] += 1
+        self.scheduler.report_detections(plan, counts)
+        if self._awaiting_report == index:
+            self._awaiting_report = None
+            self._drain()
+
+
+def create_node(cli_args: list[str] | None = None) -> ModeSchedulerNode:
+    return ModeSchedulerNode(cli_args=cli_args)
+
+
+def main() -> int:
+    return run_node(create_node)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,116 @@
+"""The one parameter schema of the graph: declared with descriptors, documented from here.
+
+Each node declares exactly the entries listed for it, with a ``ParameterDescriptor`` carrying
+the description and the allowed range, so ``ros2 param describe`` and the README table (made by
+:func:`markdown_table`, checked by a test) can never disagree with the code.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One ROS parameter: name, default, description and (for numbers) an inclusive range."""
+
+    name: str
+    default: Any
+    description: str
+    minimum: float | None = None
+    maximum: float | None = None
+    choices: tuple[str, ...] = ()
+
+    def validate(self, value: Any) -> None:
+        """Raise ``ValueError`` naming the parameter when ``value`` is out of range/choices."""
+        if self.choices and value not in self.choices:
+            raise ValueError(f"parameter {self.name}={value!r} must be one of {list(self.choices)}")
+        if self.minimum is not None and value < self.minimum:
+            raise ValueError(f"parameter {self.name}={value!r} is below its minimum {self.minimum}")
+        if self.maximum is not None and value > self.maximum:
+            raise ValueError(f"parameter {self.name}={value!r} is above its maximum {self.maximum}")
+
+
+_CAMERA_QOS = ParamSpec(
+    "camera_qos", "sensor_data", "QoS of camera input: match the publisher", choices=("sensor_data", "reliable")
+)
+_DIAG_PERIOD = ParamSpec("diagnostics_period", 1.0, "Seconds between /diagnostics messages", 0.1, 60.0)
+
+SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
+    "frame_pair_buffer": (
+        ParamSpec("image_transport", "raw", "Camera input: sensor_msgs/Image or CompressedImage", choices=("raw", "compressed")),
+        _CAMERA_QOS,
+        ParamSpec("pair_width", 0, "Width of the frame pair sent to the global detector [px]; 0 = from the model card", 0, 4096),
+        ParamSpec("pair_height", 0, "Height of the frame pair [px]; 0 = from the model card", 0, 4096),
+        _DIAG_PERIOD,
+    ),
+    "global_detector": (
+        ParamSpec("model_path", "", "AM-YOLO ONNX file; empty = the model shipped with gldt_core"),
+        ParamSpec("score_threshold", 0.1, "Lowest detection score kept (ByteTrack uses the low ones)", 0.0, 1.0),
+        ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers (CUDA, TensorRT on Jetson)"),
+        ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
+        _DIAG_PERIOD,
+    ),
+    "local_detector": (
+        ParamSpec("model_path", "", "Local P2 ONNX file; empty = the model shipped with gldt_core"),
+        ParamSpec("score_threshold", 0.1, "Lowest detection score kept", 0.0, 1.0),
+        ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers"),
+        ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
+        _DIAG_PERIOD,
+    ),
+    "mode_scheduler": (
+        ParamSpec("global_frames", 30, "N_g: frames of global detection before trying local mode", 1, 10000),
+        ParamSpec("local_frames", 120, "N_l: most frames in local mode before a global refresh", 1, 10000),
+        ParamSpec("miss_frames", 5, "N_m: local frames without any detection before returning to global", 1, 10000),
+        ParamSpec("roi_size", 300, "Side of a local-detection ROI [px]", 32, 2048),
+        ParamSpec("track_wait", 0.05, "Seconds to wait for the previous frame's tracks before deciding", 0.0, 10.0),
+        ParamSpec("lockstep", False, "Wait for the previous frame's tracks without timeout (deterministic replay)"),
+        _DIAG_PERIOD,
+    ),
+    "jptrack_tracker": (
+        ParamSpec("tracker", "jptrack", "Association: JPTrack (JCMA + PMR) or the ByteTrack baseline", choices=("jptrack", "bytetrack")),
+        _CAMERA_QOS,
+        ParamSpec("publish_markers", True, "Publish visualization_msgs/MarkerArray while someone subscribes"),
+        _DIAG_PERIOD,
+    ),
+}
+
+
+def markdown_table() -> str:
+    """The README's parameter table, generated from :data:`SCHEMA`."""
+    lines = ["| node | parameter | default | range / choices | description |", "|---|---|---|---|---|"]
+    for node, specs in SCHEMA.items():
+        for spec in specs:
+            if spec.choices:
+                allowed = ", ".join(spec.choices)
+            elif spec.minimum is not None or spec.maximum is not None:
+                allowed = f"[{spec.minimum}, {spec.maximum}]"
+            else:
+                allowed = ""
+            lines.append(f"| {node} | `{spec.name}` | `{spec.default!r}` | {allowed} | {spec.description} |")
+    return "\n".join(lines)
+
+
+def default_yaml() -> str:
+    """A ROS parameter file holding every schema default (``/**/node`` matches any namespace)."""
+    lines = ["# GL-DT node parameters (defaults). Generated from gldt_ros/params.py; see the README table."]
+    for node, specs in SCHEMA.items():
+        lines += [f"/**/{node}:", "  ros__parameters:"]
+        for spec in specs:
+            value = spec.default
+            text = ("true" if value else "false") if isinstance(value, bool) else (f'"{value}"' if isinstance(value, str) else repr(value))
+            lines.append(f"    {spec.name}: {text}  # {spec.description}")
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    import sys
+
+    if sys.argv[1:] == ["--yaml"]:
+        print(default_yaml(), end="")
+    elif sys.argv[1:] == ["--markdown"]:
+        print(markdown_table())
+    else:
+        print("usage: python -m gldt_ros.params --yaml | --markdown", file=sys.stderr)
+        sys.exit(2)

@@ -1,0 +1,183 @@
+"""``pipeline``: start the GL-DT graph, optionally replay a bag into it and record its outputs.
+
+Like a launch file, it starts each node in its own process by default (``--in-process`` runs all
+of them in one executor instead, which is handy for debugging and profiling). With ``--bag`` it
+plays the bag's camera, camera_info and ground-truth topics into the graph, either at the bag's
+pace times ``--rate`` or in ``--lockstep``: frame t+1 is only published after ``/gldt/tracks``
+has answered frame t, which makes a replay deterministic. ``--record OUT.mcap`` writes every
+output topic, with its type, to an MCAP file. The run ends at the bag's end or on Ctrl-C, and the
+child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if they hang).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Sequence
+
+NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
+
+
+def default_params_file() -> Path:
+    """``share/gldt_ros/config/gldt.yaml`` of the installed package (or the source tree)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("gldt_ros")) / "config" / "gldt.yaml"
+    except Exception:  # noqa: BLE001 - the ament index is optional when run from source
+        return Path(__file__).resolve().parents[1] / "config" / "gldt.yaml"
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="pipeline", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--bag", type=Path, help="rosbag2 MCAP (file or folder) to replay into the graph")
+    parser.add_argument("--record", type=Path, help="write the graph's outputs to this MCAP file")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--rate", type=float, default=1.0, help="replay speed factor (default 1.0)")
+    pace.add_argument("--lockstep", action="store_true", help="publish frame t+1 only after tracks for frame t")
+    parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: config/gldt.yaml)")
+    parser.add_argument("--namespace", default="", help="namespace of the graph (one per camera)")
+    parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
+    parser.add_argument("--frame-timeout", type=float, default=30.0, help="lockstep: seconds to wait for one frame's tracks")
+    parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all nodes to come up")
+    args = parser.parse_args(argv)
+    if args.rate <= 0:
+        parser.error(f"--rate must be positive, got {args.rate}")
+    if args.bag is not None and not args.bag.exists():
+        parser.error(f"--bag {args.bag}: no such file or folder")
+    args.params = args.params or default_params_file()
+    if not args.params.is_file():
+        parser.error(f"--params {args.params}: no such file")
+    return args
+
+
+def node_command(name: str, args: argparse.Namespace) -> list[str]:
+    """Command line of one node process."""
+    command = [sys.executable, "-m", f"gldt_ros.nodes.{name}", "--ros-args", "--params-file", str(args.params)]
+    if args.namespace:
+        command += ["-r", f"__ns:=/{args.namespace.strip('/')}"]
+    if args.lockstep and name == "mode_scheduler":
+        command += ["-p", "lockstep:=true"]
+    if args.lockstep and name == "frame_pair_buffer":
+        command += ["-p", "camera_qos:=reliable"]
+    return command
+
+
+class NodeProcesses:
+    """The child node processes: start, watch, stop."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        for name in NODES:
+            self.processes[name] = subprocess.Popen(node_command(name, args), start_new_session=True)
+
+    def dead(self) -> list[str]:
+        return [name for name, process in self.processes.items() if process.poll() is not None]
+
+    def stop(self, grace_s: float = 10.0) -> int:
+        """SIGINT every child, escalate to SIGTERM/SIGKILL; return the number that did not exit cleanly."""
+        for process in self.processes.values():
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + grace_s
+        unclean = 0
+        for name, process in self.processes.items():
+            try:
+                code = process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                process.terminate()
+                try:
+                    code = process.wait(timeout=3.0)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    code = process.wait()
+            if code not in (0, -signal.SIGINT, 130):
+                print(f"pipeline: node {name} exited with code {code}", flush=True)
+                unclean += 1
+        return unclean
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``ros2 run gldt_ros pipeline``."""
+    args = parse_args(argv if argv is not None else sys.argv[1:])
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+
+    from gldt_ros.replay import GraphDriver
+
+    rclpy.init(args=["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"] if args.namespace else None)
+    stop_requested = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
+    children: NodeProcesses | None = None
+    in_process_nodes = []
+    executor = MultiThreadedExecutor(num_threads=4)
+    driver = GraphDriver(args)
+    executor.add_node(driver)
+    spin_thread = threading.Thread(target=executor.spin, daemon=True)
+    status = 0
+    started = time.monotonic()
+    try:
+        if args.in_process:
+            in_process_nodes = _create_in_process_nodes(args)
+            for node in in_process_nodes:
+                executor.add_node(node)
+        else:
+            children = NodeProcesses(args)
+        spin_thread.start()
+        expected = [f"{args.namespace.strip('/')}/{n}".strip("/") for n in NODES]
+        if not driver.wait_for_nodes(expected, args.startup_timeout, lambda: children.dead() if children else []):
+            return 1
+        print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s", flush=True)
+        if args.bag is not None:
+            summary = driver.replay(stop_requested, lambda: children.dead() if children else [])
+            print(summary, flush=True)
+        else:
+            while not stop_requested.is_set():
+                dead = children.dead() if children else []
+                if dead:
+                    print(f"pipeline: node(s) {', '.join(dead)} exited; stopping", flush=True)
+                    status = 1
+                    break
+                stop_requested.wait(0.2)
+    except KeyboardInterrupt:
+        print("pipeline: interrupted, stopping", flush=True)
+    finally:
+        driver.close()
+        if children is not None and children.stop():
+            status = status or 1
+        executor.shutdown(timeout_sec=2.0)
+        for node in in_process_nodes:
+            node.destroy_node()
+        driver.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return status
+
+
+def _create_in_process_nodes(args: argparse.Namespace) -> list:
+    """Instantiate every node in this process with the parameter file applied."""
+    import importlib
+
+    from rclpy.context import Context  # noqa: F401 - documents that the default context is shared
+
+    nodes = []
+    overrides = ["--ros-args", "--params-file", str(args.params)]
+    for name in NODES:
+        module = importlib.import_module(f"gldt_ros.nodes.{name}")
+        extra = []
+        if args.lockstep and name == "mode_scheduler":
+            extra = ["-p", "lockstep:=true"]
+        if args.lockstep and name == "frame_pair_buffer":
+            extra = ["-p", "camera_qos:=reliable"]
+        nodes.append(module.create_node(cli_args=overrides + extra))
+    return nodes
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,137 @@
+"""The pipeline's own node: waits for the graph, plays a bag into it, records its outputs."""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from typing import Callable
+
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+from gldt_ros import qos, topics
+from gldt_ros.bag_io import IMAGE_TYPES_SET, McapRecorder, header_stamp_ns, iter_bag, message_class
+
+RECORDED_TOPICS = {
+    topics.TRACKS: "gldt_msgs/msg/TrackArray",
+    topics.DETECTIONS: "gldt_msgs/msg/DetectionArray",
+    topics.SCHEDULER_STATE: "gldt_msgs/msg/SchedulerState",
+}
+
+
+class GraphDriver(Node):
+    """Replays a bag (paced or in lockstep with ``/gldt/tracks``) and records the outputs."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        super().__init__("gldt_pipeline")
+        self.args = args
+        self._answered: set[int] = set()
+        self._answered_cv = threading.Condition()
+        self.tracks_received = 0
+        self.last_track_count = 0
+        self.recorder = McapRecorder(args.record) if args.record else None
+        for topic, msgtype in RECORDED_TOPICS.items():
+            self.create_subscription(
+                message_class(msgtype), topic, self._make_record_callback(topic, msgtype),
+                qos.LATCHED_STATE if topic == topics.SCHEDULER_STATE else qos.RELIABLE, raw=True,
+            )
+        self._publishers: dict[str, object] = {}
+
+    def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
+        def callback(raw: bytes) -> None:
+            now = self.get_clock().now().nanoseconds
+            if self.recorder is not None:
+                self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
+            if topic == topics.TRACKS:
+                with self._answered_cv:
+                    self.tracks_received += 1
+                    self._answered.add(header_stamp_ns(raw))
+                    self._answered_cv.notify_all()
+
+        return callback
+
+    def wait_for_nodes(self, names: list[str], timeout_s: float, dead: Callable[[], list[str]]) -> bool:
+        """Block until every node name is visible in the graph; report a node that died instead."""
+        deadline = time.monotonic() + timeout_s
+        wanted = {"/" + name.strip("/") for name in names}
+        while time.monotonic() < deadline:
+            gone = dead()
+            if gone:
+                print(f"pipeline: node(s) {', '.join(gone)} exited during start-up", flush=True)
+                return False
+            present = {
+                (namespace.rstrip("/") + "/" + name) for name, namespace in self.get_node_names_and_namespaces()
+            }
+            if wanted <= present:
+                return True
+            time.sleep(0.1)
+        print(f"pipeline: nodes not up after {timeout_s:.0f} s: {sorted(wanted - present)}", flush=True)
+        return False
+
+    def _publisher(self, topic: str, msgtype: str):
+        if topic not in self._publishers:
+            reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+            self._publishers[topic] = self.create_publisher(message_class(msgtype), topic, reliable)
+        return self._publishers[topic]
+
+    def replay(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str:
+        """Play the bag; return a one-line summary."""
+        frames = 0
+        skipped_topics: set[str] = set()
+        waited_out = 0
+        start_wall = time.monotonic()
+        first_log_ns: int | None = None
+        try:
+            for message in iter_bag(self.args.bag):
+                if stop.is_set():
+                    break
+                try:
+                    publisher = self._publisher(message.topic, message.msgtype)
+                except ValueError as error:
+                    if message.topic not in skipped_topics:
+                        skipped_topics.add(message.topic)
+                        self.get_logger().warning(f"not replaying topic {message.topic}: {error}")
+                    continue
+                if not self.args.lockstep:
+                    first_log_ns = message.log_time_ns if first_log_ns is None else first_log_ns
+                    due = start_wall + (message.log_time_ns - first_log_ns) / 1e9 / self.args.rate
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        stop.wait(delay)
+                publisher.publish(message.data)
+                if message.msgtype in IMAGE_TYPES_SET:
+                    frames += 1
+                    if self.args.lockstep and not self._wait_answer(header_stamp_ns(message.data), stop, dead):
+                        waited_out += 1
+        except ValueError as error:
+            self.get_logger().error(str(error))
+        if not self.args.lockstep:
+            self._drain(frames, stop)
+        elapsed = time.monotonic() - start_wall
+        return (
+            f"pipeline: replayed {frames} frames in {elapsed:.1f} s ({frames / max(elapsed, 1e-9):.1f} fps), "
+            f"{self.tracks_received} track messages, {waited_out} frames without an answer"
+        )
+
+    def _wait_answer(self, stamp_ns: int, stop: threading.Event, dead: Callable[[], list[str]]) -> bool:
+        deadline = time.monotonic() + self.args.frame_timeout
+        with self._answered_cv:
+            while stamp_ns not in self._answered:
+                if stop.is_set() or time.monotonic() > deadline or dead():
+                    self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns; going on")
+                    return False
+                self._answered_cv.wait(0.05)
+            self._answered.discard(stamp_ns)
+        return True
+
+    def _drain(self, frames: int, stop: threading.Event, quiet_s: float = 1.0) -> None:
+        """After a paced replay, wait until the graph has gone quiet."""
+        last = -1
+        while not stop.is_set() and self.tracks_received < frames and self.tracks_received != last:
+            last = self.tracks_received
+            stop.wait(quiet_s)
+
+    def close(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()

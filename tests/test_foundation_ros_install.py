@@ -1,0 +1,89 @@
+"""The colcon install tree is complete, and ``pipeline`` starts its graph and stops cleanly."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+yaml = pytest.importorskip("yaml")
+
+REPO = Path(__file__).resolve().parents[1]
+INSTALL = REPO / "install" / "gldt_ros"
+EXECUTABLES = (
+    "frame_pair_buffer",
+    "global_detector",
+    "local_detector",
+    "mode_scheduler",
+    "jptrack_tracker",
+    "threat_monitor",
+    "pipeline",
+)
+
+
+@pytest.mark.parametrize("name", EXECUTABLES)
+def test_install_tree_has_executable(name: str) -> None:
+    path = INSTALL / "lib" / "gldt_ros" / name
+    assert path.is_file(), f"{path} missing: `ros2 run gldt_ros {name}` would fail"
+    assert os.access(path, os.X_OK), f"{path} is not executable"
+
+
+def test_install_tree_has_share_files() -> None:
+    share = INSTALL / "share" / "gldt_ros"
+    for relative in ("package.xml", "config/gldt.yaml", "launch/gldt.launch.py"):
+        assert (share / relative).is_file(), f"share/gldt_ros/{relative} missing"
+    assert (REPO / "install" / "gldt_ros" / "share" / "ament_index" / "resource_index" / "packages" / "gldt_ros").is_file()
+
+
+def test_config_matches_parameter_schema() -> None:
+    from gldt_ros.params import SCHEMA
+
+    config = yaml.safe_load((REPO / "src" / "gldt_ros" / "config" / "gldt.yaml").read_text())
+    for key, section in config.items():
+        node = key.rsplit("/", 1)[-1]
+        assert node in SCHEMA, f"config section {key} names no node of the schema"
+        specs = {spec.name: spec for spec in SCHEMA[node]}
+        for name, value in section["ros__parameters"].items():
+            assert name in specs, f"{key}.{name} is not a declared parameter"
+            specs[name].validate(value)
+            assert type(value) is type(specs[name].default), f"{key}.{name} has the wrong type"
+
+
+def test_readme_parameter_table_is_generated_from_schema() -> None:
+    from gldt_ros.params import markdown_table
+
+    readme = (REPO / "README.md").read_text()
+    assert markdown_table() in readme, "README parameter table is stale: regenerate with python -m gldt_ros.params --markdown"
+
+
+def test_pipeline_starts_and_stops_cleanly() -> None:
+    pipeline = INSTALL / "lib" / "gldt_ros" / "pipeline"
+    process = subprocess.Popen(
+        [str(pipeline)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+    )
+    lines: list[str] = []
+    try:
+        deadline = time.monotonic() + 120
+        assert process.stdout is not None
+        while time.monotonic() < deadline:
+            line = process.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+            if "nodes up" in line:
+                break
+        assert any("nodes up" in line for line in lines), "pipeline never reported its nodes up:\n" + "".join(lines)
+        os.killpg(process.pid, signal.SIGINT)
+        output, _ = process.communicate(timeout=60)
+        lines.append(output)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+            process.wait()
+    text = "".join(lines)
+    assert process.returncode == 0, f"pipeline exited with {process.returncode}:\n{text}"
+    assert "Traceback" not in text, text
