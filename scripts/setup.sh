@@ -37,6 +37,9 @@ run_logged() {
 
 # 1. Tools the build needs.
 PYTHON="${PYTHON:-}"
+if [ -n "$PYTHON" ] && ! "$PYTHON" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' >/dev/null 2>&1; then
+    fail "python" "PYTHON=$PYTHON is not a Python 3.11 interpreter (the ROS 2 Jazzy wheels on PyPI are built for CPython 3.11)"
+fi
 if [ -z "$PYTHON" ]; then
     for candidate in python3.11 python3; do
         if command -v "$candidate" >/dev/null 2>&1 && "$candidate" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 11))' 2>/dev/null; then

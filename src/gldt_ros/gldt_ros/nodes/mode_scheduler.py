@@ -38,7 +38,7 @@ class ModeSchedulerNode(GldtNode):
                 n_global=int(self.param("global_frames")),
                 n_local=int(self.param("local_frames")),
                 n_miss=int(self.param("miss_frames")),
-                roi=RoiParams(size=int(self.param("roi_size"))),
+                roi=RoiParams(roi_size=int(self.param("roi_size"))),
             )
         )
         self.lockstep = bool(self.param("lockstep"))
@@ -82,7 +82,7 @@ class ModeSchedulerNode(GldtNode):
         if local:
             self._awaiting_report = index
         state = self.scheduler.state
-        roi_msgs = rois_to_msgs(plan.rois, plan.layout.groups_ids() if hasattr(plan.layout, "groups_ids") else None)
+        roi_msgs = rois_to_msgs(plan.rois, plan.layout.groups)
         decision = SchedulerState(
             header=message.header,
             frame_index=index,
