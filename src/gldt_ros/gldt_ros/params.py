@@ -10,6 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from gldt_core.pipeline.roi import DEFAULT_ROI_SIZE
+from gldt_core.pipeline.scheduler import DEFAULT_N_GLOBAL, DEFAULT_N_LOCAL, DEFAULT_N_MISS
+
 
 @dataclass(frozen=True)
 class ParamSpec:
@@ -60,12 +63,11 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         _DIAG_PERIOD,
     ),
     "mode_scheduler": (
-        ParamSpec("global_frames", 30, "N_g: frames of global detection before trying local mode", 1, 10000),
-        ParamSpec("local_frames", 120, "N_l: most frames in local mode before a global refresh", 1, 10000),
-        ParamSpec("miss_frames", 5, "N_m: local frames without any detection before returning to global", 1, 10000),
-        ParamSpec("roi_size", 300, "Side of a local-detection ROI [px]", 32, 2048),
-        ParamSpec("track_wait", 0.05, "Seconds to wait for the previous frame's tracks before deciding", 0.0, 10.0),
-        ParamSpec("lockstep", False, "Wait for the previous frame's tracks without timeout (deterministic replay)"),
+        ParamSpec("global_frames", DEFAULT_N_GLOBAL, "N_g: frames of global detection before trying local mode", 1, 10000),
+        ParamSpec("local_frames", DEFAULT_N_LOCAL, "N_l: most frames in local mode before a global refresh", 1, 10000),
+        ParamSpec("miss_frames", DEFAULT_N_MISS, "N_m: local frames without any detection before returning to global", 1, 10000),
+        ParamSpec("roi_size", DEFAULT_ROI_SIZE, "Side of a local-detection ROI [px]", 32, 2048),
+        ParamSpec("lockstep", False, "Plan a frame only after the previous LOCAL frame's detections arrived (deterministic replay)"),
         _DIAG_PERIOD,
     ),
     "jptrack_tracker": (
