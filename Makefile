@@ -5,7 +5,7 @@ SHELL := /bin/bash
 VENV_PY := .venv/bin/python
 PYTEST_ARGS ?=
 
-.PHONY: help setup demo test test-slow test-all clean
+.PHONY: help setup demo test test-slow test-all docs clean
 
 help:
 	@echo "make demo       set up, then replay the bundled sample through GL-DT and print what it saw"
@@ -26,6 +26,9 @@ test-slow: setup
 
 test-all: setup
 	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest $(PYTEST_ARGS)
+
+docs: setup
+	@$(VENV_PY) scripts/generate_param_docs.py
 
 clean:
 	rm -rf build install log .setup-stamps

@@ -53,11 +53,18 @@ def test_config_matches_parameter_schema() -> None:
             assert type(value) is type(specs[name].default), f"{key}.{name} has the wrong type"
 
 
+def test_shipped_config_holds_the_schema_defaults() -> None:
+    from gldt_ros.params import default_yaml
+
+    shipped = (REPO / "src" / "gldt_ros" / "config" / "gldt.yaml").read_text()
+    assert shipped == default_yaml(), "config/gldt.yaml is stale: run `make docs`"
+
+
 def test_readme_parameter_table_is_generated_from_schema() -> None:
     from gldt_ros.params import markdown_table
 
     readme = (REPO / "README.md").read_text()
-    assert markdown_table() in readme, "README parameter table is stale: regenerate with python -m gldt_ros.params --markdown"
+    assert markdown_table() in readme, "README parameter table is stale: run `make docs`"
 
 
 def test_pipeline_starts_and_stops_cleanly() -> None:

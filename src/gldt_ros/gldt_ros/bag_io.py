@@ -62,6 +62,30 @@ def iter_bag(path: Path) -> Iterator[RawMessage]:
             raise ValueError(f"bag {mcap_path} is damaged after the messages already read: {error}") from error
 
 
+def bag_topics(path: Path) -> dict[str, str]:
+    """``topic -> pkg/msg/Name`` of every channel in the bag's summary (empty if it has none)."""
+    from mcap.reader import make_reader
+
+    with find_mcap_file(path).open("rb") as stream:
+        try:
+            summary = make_reader(stream).get_summary()
+        except Exception:  # noqa: BLE001 - a damaged summary: topics are then found while playing
+            return {}
+    if summary is None:
+        return {}
+    topics: dict[str, str] = {}
+    for channel in summary.channels.values():
+        schema = summary.schemas.get(channel.schema_id)
+        if schema is None:
+            continue
+        name = schema.name
+        if name.count("/") == 1:
+            package, message = name.split("/")
+            name = f"{package}/msg/{message}"
+        topics[channel.topic] = name
+    return topics
+
+
 def header_stamp_ns(cdr: bytes) -> int:
     """``header.stamp`` of a CDR message whose first field is a ``std_msgs/Header`` (images, arrays)."""
     if len(cdr) < 12:

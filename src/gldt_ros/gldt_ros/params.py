@@ -42,22 +42,24 @@ _DIAG_PERIOD = ParamSpec("diagnostics_period", 1.0, "Seconds between /diagnostic
 
 SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "frame_pair_buffer": (
-        ParamSpec("image_transport", "raw", "Camera input: sensor_msgs/Image or CompressedImage", choices=("raw", "compressed")),
+        ParamSpec("image_transport", "auto", "Camera input: Image on image_raw, CompressedImage on image_raw/compressed, or both (auto)", choices=("auto", "raw", "compressed")),
         _CAMERA_QOS,
-        ParamSpec("pair_width", 0, "Width of the frame pair sent to the global detector [px]; 0 = from the model card", 0, 4096),
-        ParamSpec("pair_height", 0, "Height of the frame pair [px]; 0 = from the model card", 0, 4096),
+        ParamSpec("global_model_path", "", "AM-YOLO ONNX file whose input size the pair is letterboxed to; empty = shipped model"),
         _DIAG_PERIOD,
     ),
     "global_detector": (
         ParamSpec("model_path", "", "AM-YOLO ONNX file; empty = the model shipped with gldt_core"),
-        ParamSpec("score_threshold", 0.1, "Lowest detection score kept (ByteTrack uses the low ones)", 0.0, 1.0),
+        ParamSpec("score_threshold", -1.0, "Lowest detection score kept; -1 = the detector's default", -1.0, 1.0),
+        ParamSpec("classes", "", "Comma-separated class ids passed to the tracker (1 drone, 2 bird, 3 airplane); empty = all"),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers (CUDA, TensorRT on Jetson)"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
         _DIAG_PERIOD,
     ),
     "local_detector": (
         ParamSpec("model_path", "", "Local P2 ONNX file; empty = the model shipped with gldt_core"),
-        ParamSpec("score_threshold", 0.1, "Lowest detection score kept", 0.0, 1.0),
+        ParamSpec("score_threshold", -1.0, "Lowest detection score kept; -1 = the detector's default", -1.0, 1.0),
+        ParamSpec("classes", "", "Comma-separated class ids passed to the tracker; empty = all"),
+        ParamSpec("nms_iou", 0.5, "IoU above which detections of overlapping ROIs are merged", 0.01, 1.0),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
         _DIAG_PERIOD,
@@ -71,12 +73,34 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         _DIAG_PERIOD,
     ),
     "jptrack_tracker": (
+        ParamSpec("lost_frames_kept", DEFAULT_N_MISS, "Frames a lost track keeps getting an ROI (offline: track_lost_frames, default N_m)", 0, 10000),
         ParamSpec("tracker", "jptrack", "Association: JPTrack (JCMA + PMR) or the ByteTrack baseline", choices=("jptrack", "bytetrack")),
         _CAMERA_QOS,
         ParamSpec("publish_markers", True, "Publish visualization_msgs/MarkerArray while someone subscribes"),
         _DIAG_PERIOD,
     ),
 }
+
+
+def parse_classes(text: str) -> tuple[int, ...] | None:
+    """``"1,2"`` -> ``(1, 2)``; empty -> ``None`` (all classes). ``ValueError`` names bad items."""
+    items = [item.strip() for item in text.split(",") if item.strip()]
+    try:
+        return tuple(int(item) for item in items) if items else None
+    except ValueError:
+        raise ValueError(f"parameter classes={text!r} must be comma-separated integers") from None
+
+
+def detector_kwargs(node_param: Any) -> dict[str, Any]:
+    """Constructor arguments of a detector from its node's parameters."""
+    kwargs: dict[str, Any] = {
+        "model_path": node_param("model_path") or None,
+        "providers": tuple(p.strip() for p in node_param("providers").split(",") if p.strip()),
+        "num_threads": int(node_param("num_threads")) or None,
+    }
+    if float(node_param("score_threshold")) >= 0:
+        kwargs["score_threshold"] = float(node_param("score_threshold"))
+    return kwargs
 
 
 def markdown_table() -> str:

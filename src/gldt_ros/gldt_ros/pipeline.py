@@ -12,7 +12,6 @@ child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if they hang).
 from __future__ import annotations
 
 import argparse
-import os
 import signal
 import subprocess
 import sys
@@ -44,7 +43,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: config/gldt.yaml)")
     parser.add_argument("--namespace", default="", help="namespace of the graph (one per camera)")
     parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
-    parser.add_argument("--frame-timeout", type=float, default=30.0, help="lockstep: seconds to wait for one frame's tracks")
+    parser.add_argument("--frame-timeout", type=float, default=10.0, help="lockstep: seconds to wait for one frame's tracks")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all nodes to come up")
     args = parser.parse_args(argv)
     if args.rate <= 0:
@@ -152,6 +151,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         if children is not None and children.stop():
             status = status or 1
         executor.shutdown(timeout_sec=2.0)
+        if spin_thread.is_alive():
+            spin_thread.join(timeout=2.0)
         for node in in_process_nodes:
             node.destroy_node()
         driver.destroy_node()
@@ -163,8 +164,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _create_in_process_nodes(args: argparse.Namespace) -> list:
     """Instantiate every node in this process with the parameter file applied."""
     import importlib
-
-    from rclpy.context import Context  # noqa: F401 - documents that the default context is shared
 
     nodes = []
     overrides = ["--ros-args", "--params-file", str(args.params)]

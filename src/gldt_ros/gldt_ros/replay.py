@@ -11,7 +11,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from gldt_ros import qos, topics
-from gldt_ros.bag_io import IMAGE_TYPES_SET, McapRecorder, header_stamp_ns, iter_bag, message_class
+from gldt_ros.bag_io import IMAGE_TYPES_SET, McapRecorder, bag_topics, header_stamp_ns, iter_bag, message_class
 
 RECORDED_TOPICS = {
     topics.TRACKS: "gldt_msgs/msg/TrackArray",
@@ -33,10 +33,9 @@ class GraphDriver(Node):
         self.recorder = McapRecorder(args.record) if args.record else None
         for topic, msgtype in RECORDED_TOPICS.items():
             self.create_subscription(
-                message_class(msgtype), topic, self._make_record_callback(topic, msgtype),
-                qos.LATCHED_STATE if topic == topics.SCHEDULER_STATE else qos.RELIABLE, raw=True,
+                message_class(msgtype), topic, self._make_record_callback(topic, msgtype), qos.RELIABLE, raw=True,
             )
-        self._publishers: dict[str, object] = {}
+        self._bag_publishers: dict[str, object] = {}
 
     def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
         def callback(raw: bytes) -> None:
@@ -70,13 +69,38 @@ class GraphDriver(Node):
         return False
 
     def _publisher(self, topic: str, msgtype: str):
-        if topic not in self._publishers:
+        if topic not in self._bag_publishers:
             reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-            self._publishers[topic] = self.create_publisher(message_class(msgtype), topic, reliable)
-        return self._publishers[topic]
+            self._bag_publishers[topic] = self.create_publisher(message_class(msgtype), topic, reliable)
+        return self._bag_publishers[topic]
+
+    def _prepare_publishers(self, stop: threading.Event, timeout_s: float = 10.0) -> None:
+        """Create every publisher up front and wait until the graph has matched the image topic.
+
+        Without this the first frames would be published before DDS discovery finished and be
+        lost (a reliable publisher only delivers to subscriptions it has already matched).
+        """
+        image_publishers = []
+        for topic, msgtype in bag_topics(self.args.bag).items():
+            try:
+                publisher = self._publisher(topic, msgtype)
+            except ValueError as error:
+                self.get_logger().warning(f"not replaying topic {topic}: {error}")
+                continue
+            if msgtype in IMAGE_TYPES_SET:
+                image_publishers.append(publisher)
+        deadline = time.monotonic() + timeout_s
+        while image_publishers and not stop.is_set() and time.monotonic() < deadline:
+            if any(p.get_subscription_count() > 0 for p in image_publishers):
+                time.sleep(0.2)  # let the remaining endpoints of the graph match too
+                return
+            time.sleep(0.05)
+        if image_publishers:
+            self.get_logger().warning(f"no subscriber matched the bag's image topic after {timeout_s:.0f} s")
 
     def replay(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str:
         """Play the bag; return a one-line summary."""
+        self._prepare_publishers(stop)
         frames = 0
         skipped_topics: set[str] = set()
         waited_out = 0

@@ -16,6 +16,9 @@ import numpy as np
 from gldt_msgs.msg import FramePair, FrameTick, RoiCrops, SchedulerState
 from sensor_msgs.msg import CompressedImage, Image
 
+from gldt_core.detect import GlobalDetector, LocalDetector
+from gldt_core.detect.staged import prepare_global_input
+
 from gldt_ros import qos, topics
 from gldt_ros.convert import bgr_to_image, image_to_bgr, msgs_to_rois
 from gldt_ros.node_base import GldtNode, run_node
@@ -27,17 +30,19 @@ PENDING_FRAMES = 8
 class FramePairBuffer(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("frame_pair_buffer", **kwargs)
-        from gldt_core.detect.pairing import FramePairPreparer
-
-        self.preparer = FramePairPreparer.from_params(int(self.param("pair_width")), int(self.param("pair_height")))
+        # The global detector's own preprocessing (letterbox to its input), so the pair the
+        # detector node receives is exactly what it would have made from the full frames.
+        self.global_input = GlobalDetector(model_path=self.param("global_model_path") or None, num_threads=1)
+        self.crop = LocalDetector.crop
         self._frames: OrderedDict[int, tuple[Any, np.ndarray]] = OrderedDict()
         self._index = 0
         self._size: tuple[int, int] | None = None
         self._previous_index: int | None = None
         camera_qos = qos.camera_qos(self.param("camera_qos"))
-        if self.param("image_transport") == "compressed":
+        transport = self.param("image_transport")
+        if transport in ("auto", "compressed"):
             self.create_subscription(CompressedImage, topics.IMAGE_COMPRESSED, self.guarded(self.on_image, "image"), camera_qos)
-        else:
+        if transport in ("auto", "raw"):
             self.create_subscription(Image, topics.IMAGE_RAW, self.guarded(self.on_image, "image"), camera_qos)
         self.create_subscription(SchedulerState, topics.SCHEDULER_STATE, self.guarded(self.on_decision, "decision"), qos.RELIABLE)
         self.ticks = self.create_publisher(FrameTick, topics.FRAME_TICKS, qos.RELIABLE)
@@ -69,7 +74,8 @@ class FramePairBuffer(GldtNode):
         header, frame = self._frames[index]
         previous = self._frames.get(self._previous_index, (None, frame))[1] if self._previous_index is not None else frame
         if decision.mode == SchedulerState.MODE_GLOBAL:
-            prepared_previous, prepared_current, scale = self.preparer.prepare_pair(previous, frame)
+            prepared_previous, _ = prepare_global_input(self.global_input, previous)
+            prepared_current, letterbox = prepare_global_input(self.global_input, frame)
             self.pairs.publish(
                 FramePair(
                     header=header,
@@ -77,16 +83,26 @@ class FramePairBuffer(GldtNode):
                     previous_frame_index=self._previous_index if self._previous_index is not None else index,
                     full_width=frame.shape[1],
                     full_height=frame.shape[0],
-                    scale_x=scale[0],
-                    scale_y=scale[1],
+                    scale=float(letterbox.scale),
+                    pad_x=int(letterbox.pad_x),
+                    pad_y=int(letterbox.pad_y),
                     previous=bgr_to_image(prepared_previous, header),
                     current=bgr_to_image(prepared_current, header),
                 )
             )
         else:
             rois = msgs_to_rois(decision.rois)
-            crops = [bgr_to_image(np.ascontiguousarray(frame[y1:y2, x1:x2]), header) for x1, y1, x2, y2 in rois]
-            self.crops.publish(RoiCrops(header=header, frame_index=index, rois=list(decision.rois), crops=crops))
+            crops = [bgr_to_image(self.crop(frame, roi), header) for roi in rois]
+            self.crops.publish(
+                RoiCrops(
+                    header=header,
+                    frame_index=index,
+                    full_width=frame.shape[1],
+                    full_height=frame.shape[0],
+                    rois=list(decision.rois),
+                    crops=crops,
+                )
+            )
         # Every frame becomes the next frame's predecessor, LD frames included, so the first GD
         # frame after an LD stretch still gets a true consecutive pair.
         for stale in [i for i in self._frames if i < index]:

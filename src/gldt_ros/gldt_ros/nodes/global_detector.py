@@ -11,30 +11,33 @@ from typing import Any
 
 from gldt_msgs.msg import Detection, DetectionArray, FramePair
 
+from gldt_core.detect import GlobalDetector
+from gldt_core.detect.postprocess import Letterbox
+from gldt_core.detect.staged import detect_global_prepared
+from gldt_core.pipeline.steps import filter_classes
+
 from gldt_ros import qos, topics
 from gldt_ros.convert import detections_to_msgs, image_to_bgr
 from gldt_ros.node_base import GldtNode, run_node
+from gldt_ros.params import detector_kwargs, parse_classes
 
 
 class GlobalDetectorNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("global_detector", **kwargs)
-        from gldt_core.detect import GlobalDetector
-
-        self.detector = GlobalDetector(
-            model_path=self.param("model_path") or None,
-            providers=tuple(p.strip() for p in self.param("providers").split(",") if p.strip()),
-            score_threshold=float(self.param("score_threshold")),
-            num_threads=int(self.param("num_threads")) or None,
-        )
+        self.detector = GlobalDetector(**detector_kwargs(self.param))
+        self.classes = parse_classes(self.param("classes"))
         self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), qos.RELIABLE)
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
 
     def on_pair(self, pair: FramePair) -> None:
         start = time.perf_counter()
-        detections = self.detector.detect_prepared(
-            image_to_bgr(pair.previous), image_to_bgr(pair.current), (pair.scale_x, pair.scale_y)
+        current = image_to_bgr(pair.current)
+        letterbox = Letterbox(pair.scale, int(pair.pad_x), int(pair.pad_y), current.shape[1], current.shape[0])
+        raw = detect_global_prepared(
+            self.detector, image_to_bgr(pair.previous), current, letterbox, int(pair.full_width), int(pair.full_height)
         )
+        detections = filter_classes(raw, 6, self.classes)
         self.publisher.publish(
             DetectionArray(
                 header=pair.header,

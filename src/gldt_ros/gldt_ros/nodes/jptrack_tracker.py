@@ -15,8 +15,14 @@ from gldt_msgs.msg import DetectionArray, FrameTick, TrackArray, TrackPrediction
 from sensor_msgs.msg import CameraInfo
 from visualization_msgs.msg import MarkerArray
 
+from gldt_core.geometry import PinholeIntrinsics
+from gldt_core.pipeline.config import PipelineConfig, TrackerSettings
+from gldt_core.pipeline.pipeline import build_tracker
+from gldt_core.pipeline.steps import stable_predictions
+
 from gldt_ros import qos, topics
 from gldt_ros.convert import detection_array_to_tracker_input, track_to_msg
+from gldt_ros.planner import fill_planner_fields, markers_for
 from gldt_ros.node_base import GldtNode, run_node
 
 
@@ -27,10 +33,9 @@ def _stamp_seconds(stamp: Any) -> float:
 class TrackerNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("jptrack_tracker", **kwargs)
-        from gldt_core.pipeline.config import PipelineConfig, TrackerSettings
-        from gldt_core.pipeline.pipeline import build_tracker
-
-        self.config = PipelineConfig(tracker=TrackerSettings(name=self.param("tracker")))
+        self.config = PipelineConfig(
+            tracker=TrackerSettings(name=self.param("tracker")), track_lost_frames=int(self.param("lost_frames_kept"))
+        )
         self.tracker = build_tracker(self.config)
         self.intrinsics = None
         self._last_stamp: float | None = None
@@ -42,8 +47,6 @@ class TrackerNode(GldtNode):
         self.marker_publisher = self.create_publisher(MarkerArray, topics.TRACK_MARKERS, qos.RELIABLE)
 
     def on_camera_info(self, message: CameraInfo) -> None:
-        from gldt_core.geometry import PinholeIntrinsics
-
         try:
             self.intrinsics = PinholeIntrinsics.from_k(message.k)
         except ValueError as error:
@@ -51,8 +54,6 @@ class TrackerNode(GldtNode):
             raise ValueError(f"camera_info ignored, bearings invalid until a good one arrives: {error}") from None
 
     def on_tick(self, tick: FrameTick) -> None:
-        from gldt_core.pipeline.pipeline import stable_predictions
-
         t = _stamp_seconds(tick.header.stamp)
         if self._last_stamp is not None and t <= self._last_stamp:
             self.get_logger().warning(
@@ -73,8 +74,6 @@ class TrackerNode(GldtNode):
         )
 
     def on_detections(self, message: DetectionArray) -> None:
-        from gldt_ros.planner import fill_planner_fields, markers_for
-
         t = _stamp_seconds(message.header.stamp)
         if self._last_stamp is not None and t <= self._last_stamp:
             self.get_logger().warning(

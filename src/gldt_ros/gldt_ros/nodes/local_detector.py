@@ -10,36 +10,32 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import numpy as np
 from gldt_msgs.msg import Detection, DetectionArray, RoiCrops
+
+from gldt_core.detect import LocalDetector
+from gldt_core.detect.staged import detect_local_crops
+from gldt_core.pipeline.steps import merge_local_detections
 
 from gldt_ros import qos, topics
 from gldt_ros.convert import detections_to_msgs, image_to_bgr, msgs_to_rois
 from gldt_ros.node_base import GldtNode, run_node
+from gldt_ros.params import detector_kwargs, parse_classes
 
 
 class LocalDetectorNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("local_detector", **kwargs)
-        from gldt_core.detect import LocalDetector
-
-        self.detector = LocalDetector(
-            model_path=self.param("model_path") or None,
-            providers=tuple(p.strip() for p in self.param("providers").split(",") if p.strip()),
-            score_threshold=float(self.param("score_threshold")),
-            num_threads=int(self.param("num_threads")) or None,
-        )
+        self.detector = LocalDetector(**detector_kwargs(self.param))
+        self.classes = parse_classes(self.param("classes"))
         self.create_subscription(RoiCrops, topics.ROI_CROPS, self.guarded(self.on_crops, "ROI crops"), qos.RELIABLE)
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
 
     def on_crops(self, message: RoiCrops) -> None:
-        from gldt_core.pipeline.pipeline import merge_local_detections
-
         start = time.perf_counter()
         rois = msgs_to_rois(message.rois)
         crops = [image_to_bgr(crop) for crop in message.crops]
-        raw = self.detector.detect_crops(crops, rois) if len(crops) else np.zeros((0, 7))
-        detections = merge_local_detections(raw)
+        raw = detect_local_crops(self.detector, crops, rois, int(message.full_width), int(message.full_height))
+        detections = merge_local_detections(raw, self.classes, float(self.param("nms_iou")))
         self.publisher.publish(
             DetectionArray(
                 header=message.header,

@@ -18,6 +18,9 @@ import numpy as np
 from builtin_interfaces.msg import Time
 from gldt_msgs.msg import DetectionArray, RoiArray, SchedulerState, TrackPredictions
 
+from gldt_core.pipeline.roi import RoiParams
+from gldt_core.pipeline.scheduler import ModeScheduler, SchedulerConfig
+
 from gldt_ros import qos, topics
 from gldt_ros.convert import rois_to_msgs
 from gldt_ros.node_base import GldtNode, run_node
@@ -30,9 +33,6 @@ def _stamp_seconds(stamp: Time) -> float:
 class ModeSchedulerNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("mode_scheduler", **kwargs)
-        from gldt_core.pipeline.roi import RoiParams
-        from gldt_core.pipeline.scheduler import ModeScheduler, SchedulerConfig
-
         self.scheduler = ModeScheduler(
             SchedulerConfig(
                 n_global=int(self.param("global_frames")),

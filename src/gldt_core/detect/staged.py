@@ -1,0 +1,88 @@
+"""The detectors split at the process boundary of the ROS graph.
+
+``GlobalDetector.detect`` = :func:`prepare_global_input` on both frames (letterbox to the network
+input) + :func:`detect_global_prepared`; ``LocalDetector.detect_rois`` = ``LocalDetector.crop``
+on each ROI + :func:`detect_local_crops`. The ROS graph runs the first half in
+``frame_pair_buffer`` (the only node holding full frames) and the second half in the detector
+nodes, and the offline wrappers call these same functions, so both give identical boxes.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+
+from .postprocess import Letterbox, decode_output, ensure_bgr, letterbox, to_blob, unletterbox
+
+
+def prepare_global_input(detector: Any, frame_bgr: np.ndarray) -> tuple[np.ndarray, Letterbox]:
+    """Letterbox one full frame to the global detector's network input; returns image and mapping."""
+    frame = ensure_bgr(frame_bgr, "frame")
+    height, width = frame.shape[:2]
+    input_w, input_h = detector.input_size(width, height)
+    return letterbox(frame, input_w, input_h)
+
+
+def detect_global_prepared(
+    detector: Any,
+    previous_input: np.ndarray,
+    current_input: np.ndarray,
+    mapping: Letterbox,
+    frame_width: int,
+    frame_height: int,
+) -> np.ndarray:
+    """Run AM-YOLO on an already letterboxed pair; ``(N, 6)`` float32 boxes in full-frame pixels."""
+    if previous_input.shape != current_input.shape:
+        raise ValueError(
+            f"letterboxed previous {previous_input.shape} and current {current_input.shape} inputs differ in shape"
+        )
+    if detector.dual_frame:
+        feed = dict(zip(detector.input_names, (to_blob([previous_input]), to_blob([current_input]))))
+    else:
+        feed = {detector.input_names[0]: to_blob([current_input])}
+    (output,) = detector.session.run(None, feed)
+    detections = decode_output(output[0], detector.score_threshold, detector.iou_threshold, detector.max_detections)
+    detections = unletterbox(detections, mapping, frame_width, frame_height)
+    if len(detections):
+        detections[:, 5] = detector.class_ids[detections[:, 5].astype(np.int64)]
+    return detections.astype(np.float32)
+
+
+def detect_local_crops(
+    detector: Any,
+    crops: Sequence[np.ndarray],
+    rois: np.ndarray,
+    frame_width: int,
+    frame_height: int,
+) -> np.ndarray:
+    """The local model on ROI crops (one batch); ``(N, 7)`` ``[x1,y1,x2,y2,score,class,roi]`` full-frame px."""
+    rois = np.asarray(rois, dtype=np.int64).reshape(-1, 4)
+    if len(crops) != len(rois):
+        raise ValueError(f"{len(crops)} crops but {len(rois)} ROIs")
+    if len(rois) == 0:
+        return np.zeros((0, 7), dtype=np.float32)
+    inputs, mappings = [], []
+    for crop, roi in zip(crops, rois):
+        expected = (int(roi[3] - roi[1]), int(roi[2] - roi[0]))
+        if crop.shape[:2] != expected:
+            raise ValueError(f"crop of shape {crop.shape[:2]} does not match its ROI {roi.tolist()} ({expected})")
+        image, mapping = letterbox(ensure_bgr(crop, "ROI crop"), detector.input_side, detector.input_side)
+        inputs.append(image)
+        mappings.append(mapping)
+    (output,) = detector.session.run(None, {detector.input_name: to_blob(inputs)})
+    results = []
+    for index, (out, mapping, roi) in enumerate(zip(output, mappings, rois)):
+        detections = decode_output(out, detector.score_threshold, detector.iou_threshold, detector.max_detections_per_roi)
+        if not len(detections):
+            continue
+        detections = unletterbox(detections, mapping, int(roi[2] - roi[0]), int(roi[3] - roi[1]))
+        detections[:, [0, 2]] += roi[0]
+        detections[:, [1, 3]] += roi[1]
+        detections[:, [0, 2]] = detections[:, [0, 2]].clip(0, frame_width)
+        detections[:, [1, 3]] = detections[:, [1, 3]].clip(0, frame_height)
+        detections[:, 5] = detector.class_ids[detections[:, 5].astype(np.int64)]
+        results.append(np.concatenate((detections, np.full((len(detections), 1), index, dtype=np.float32)), 1))
+    if not results:
+        return np.zeros((0, 7), dtype=np.float32)
+    return np.concatenate(results).astype(np.float32)

@@ -1,0 +1,69 @@
+"""Read what the ROS graph recorded (``pipeline --record OUT.mcap``) back into core arrays.
+
+The recording holds CDR messages of the graph's own types; they are decoded with the rosbags
+typestore (no ROS needed), so offline tools (``gldt eval``, the demo, the equivalence test) can
+compare the graph's ``/gldt/tracks`` with an offline run.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+
+TRACKS_TOPIC_SUFFIX = "gldt/tracks"
+
+
+def iter_recorded(path: str | os.PathLike[str], topic_suffix: str) -> Iterator[tuple[str, Any]]:
+    """Yield ``(topic, message)`` for every message whose topic ends with ``topic_suffix``.
+
+    A recording cut short (the recorder was killed) yields every complete message before the
+    cut; anything else unreadable raises ``ValueError`` naming the file.
+    """
+    from mcap.exceptions import McapError
+    from mcap.reader import make_reader
+
+    from gldt_core.io.ros_types import typestore
+
+    store = typestore()
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"recording not found: {path}")
+    with path.open("rb") as stream:
+        reader = make_reader(stream)
+        try:
+            for schema, channel, message in reader.iter_messages(log_time_order=False):
+                if not channel.topic.endswith(topic_suffix):
+                    continue
+                msgtype = schema.name if schema is not None else ""
+                yield channel.topic, store.deserialize_cdr(message.data, msgtype)
+        except (McapError, EOFError) as error:
+            raise ValueError(f"recording {path} is damaged after the messages already read: {error}") from error
+
+
+def recorded_track_rows(path: str | os.PathLike[str]) -> np.ndarray:
+    """MOTChallenge rows ``frame, id, x, y, w, h, score, -1, -1, -1`` of every recorded ``TrackArray``.
+
+    ``frame`` is ``frame_index + 1`` (MOTChallenge is 1-based), rows in recording order.
+    """
+    rows: list[tuple[float, ...]] = []
+    for _, array in iter_recorded(path, TRACKS_TOPIC_SUFFIX):
+        frame = int(array.frame_index) + 1
+        for track in array.tracks:
+            rows.append(
+                (
+                    frame,
+                    int(track.id),
+                    track.center_x - track.width / 2,
+                    track.center_y - track.height / 2,
+                    track.width,
+                    track.height,
+                    float(track.score),
+                    -1.0,
+                    -1.0,
+                    -1.0,
+                )
+            )
+    return np.asarray(rows, dtype=np.float64).reshape(-1, 10)
