@@ -18,6 +18,8 @@ def fill_planner_fields(message: Track, track: Any, intrinsics: PinholeIntrinsic
     (``vw, vh`` at indices 6, 7 of an 8-dim state) when the track has one.
     """
     state = getattr(track, "mean", None)
+    if state is None and hasattr(track, "kf"):
+        state = getattr(track.kf, "mean", None)
     width, height = message.width, message.height
     if state is not None and len(state) >= 8 and width > 0 and height > 0:
         size = math.sqrt(width * height)
