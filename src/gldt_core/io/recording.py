@@ -16,8 +16,8 @@ import numpy as np
 TRACKS_TOPIC_SUFFIX = "gldt/tracks"
 
 
-def iter_recorded(path: str | os.PathLike[str], topic_suffix: str) -> Iterator[tuple[str, Any]]:
-    """Yield ``(topic, message)`` for every message whose topic ends with ``topic_suffix``.
+def iter_recorded(path: str | os.PathLike[str], topic_suffix: str) -> Iterator[tuple[str, Any, int]]:
+    """Yield ``(topic, message, log_time_ns)`` for every message whose topic ends with ``topic_suffix``.
 
     A recording cut short (the recorder was killed) yields every complete message before the
     cut; anything else unreadable raises ``ValueError`` naming the file.
@@ -38,7 +38,7 @@ def iter_recorded(path: str | os.PathLike[str], topic_suffix: str) -> Iterator[t
                 if not channel.topic.endswith(topic_suffix):
                     continue
                 msgtype = schema.name if schema is not None else ""
-                yield channel.topic, store.deserialize_cdr(message.data, msgtype)
+                yield channel.topic, store.deserialize_cdr(message.data, msgtype), message.log_time
         except (McapError, EOFError) as error:
             raise ValueError(f"recording {path} is damaged after the messages already read: {error}") from error
 
@@ -49,7 +49,7 @@ def recorded_track_rows(path: str | os.PathLike[str]) -> np.ndarray:
     ``frame`` is ``frame_index + 1`` (MOTChallenge is 1-based), rows in recording order.
     """
     rows: list[tuple[float, ...]] = []
-    for _, array in iter_recorded(path, TRACKS_TOPIC_SUFFIX):
+    for _, array, _ in iter_recorded(path, TRACKS_TOPIC_SUFFIX):
         frame = int(array.frame_index) + 1
         for track in array.tracks:
             rows.append(

@@ -113,6 +113,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
     node = None
     try:
         node = node_factory()
+        print(f"[gldt] {node.get_name()} ready", flush=True)
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -45,6 +45,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
     parser.add_argument("--frame-timeout", type=float, default=10.0, help="lockstep: seconds to wait for one frame's tracks")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all nodes to come up")
+    parser.add_argument("--max-restarts", type=int, default=5, help="restarts of a node that dies after start-up (0: stop the graph instead)")
     args = parser.parse_args(argv)
     if args.rate <= 0:
         parser.error(f"--rate must be positive, got {args.rate}")
@@ -69,18 +70,55 @@ def node_command(name: str, args: argparse.Namespace) -> list[str]:
 
 
 class NodeProcesses:
-    """The child node processes: start, watch, stop."""
+    """The child node processes: start, supervise (restart the ones that die), stop."""
 
     def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        self.restarts: dict[str, int] = {name: 0 for name in NODES}
+        self.supervising = False
+        self._lock = threading.Lock()
         for name in NODES:
-            self.processes[name] = subprocess.Popen(node_command(name, args), start_new_session=True)
+            self._start(name)
+
+    def _start(self, name: str) -> None:
+        process = subprocess.Popen(node_command(name, self.args), start_new_session=True)
+        self.processes[name] = process
+        print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
     def dead(self) -> list[str]:
-        return [name for name, process in self.processes.items() if process.poll() is not None]
+        """Nodes that are not running and will not be restarted."""
+        with self._lock:
+            return [
+                name
+                for name, process in self.processes.items()
+                if process.poll() is not None and not (self.supervising and self.restarts[name] < self.args.max_restarts)
+            ]
+
+    def supervise(self) -> list[str]:
+        """Restart every node that died (once start-up is over), at most ``--max-restarts`` times each.
+
+        A node dying is a fault to survive, not a reason to stop the graph: the others keep their
+        state and the restarted node rejoins through DDS discovery.
+        """
+        restarted: list[str] = []
+        with self._lock:
+            if not self.supervising:
+                return restarted
+            for name, process in list(self.processes.items()):
+                code = process.poll()
+                if code is None or self.restarts[name] >= self.args.max_restarts:
+                    continue
+                self.restarts[name] += 1
+                print(f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})", flush=True)
+                self._start(name)
+                restarted.append(name)
+        return restarted
 
     def stop(self, grace_s: float = 10.0) -> int:
         """SIGINT every child, escalate to SIGTERM/SIGKILL; return the number that did not exit cleanly."""
+        with self._lock:
+            self.supervising = False
         for process in self.processes.values():
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
@@ -133,6 +171,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not driver.wait_for_nodes(expected, args.startup_timeout, lambda: children.dead() if children else []):
             return 1
         print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s", flush=True)
+        if children is not None:
+            children.supervising = True
+            supervisor = threading.Thread(target=_supervise_until, args=(children, stop_requested), daemon=True)
+            supervisor.start()
         if args.bag is not None:
             summary = driver.replay(stop_requested, lambda: children.dead() if children else [])
             print(summary, flush=True)
@@ -147,6 +189,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("pipeline: interrupted, stopping", flush=True)
     finally:
+        stop_requested.set()
         driver.close()
         if children is not None and children.stop():
             status = status or 1
@@ -159,6 +202,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         if rclpy.ok():
             rclpy.shutdown()
     return status
+
+
+def _supervise_until(children: NodeProcesses, stop: threading.Event, period_s: float = 0.2) -> None:
+    """Restart dead nodes until asked to stop (each node prints "ready" once it is back up)."""
+    while not stop.wait(period_s):
+        children.supervise()
 
 
 def _create_in_process_nodes(args: argparse.Namespace) -> list:

@@ -1,0 +1,192 @@
+"""The ROS graph survives bad input and a node dying mid-replay, and loses no recorded data.
+
+Bad camera input (garbage JPEG, unsupported encoding, empty or short images, a resolution change,
+NaN camera_info) costs the node that frame only; frames after it are still tracked. A node
+killed mid-replay is restarted by ``pipeline``, the graph answers again, and the recording stays
+readable with every message it received.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
+
+from rclpy.executors import MultiThreadedExecutor  # noqa: E402
+from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+PIPELINE = REPO / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
+RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+
+
+class InProcessGraph:
+    """The five nodes in this process, plus a probe that publishes camera input and counts tracks."""
+
+    def __init__(self) -> None:
+        from gldt_msgs.msg import TrackArray
+        from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+
+        from gldt_ros.nodes import frame_pair_buffer, global_detector, jptrack_tracker, local_detector, mode_scheduler
+
+        rclpy.init()
+        args = ["--ros-args", "-p", "camera_qos:=reliable"]
+        self.nodes = [m.create_node(cli_args=args) for m in (frame_pair_buffer, mode_scheduler, global_detector, local_detector, jptrack_tracker)]
+        self.buffer, self.tracker = self.nodes[0], self.nodes[4]
+        self.probe = rclpy.create_node("fault_probe")
+        self.tracks: list = []
+        self.probe.create_subscription(TrackArray, "gldt/tracks", self.tracks.append, RELIABLE)
+        self.raw = self.probe.create_publisher(Image, "/camera/image_raw", RELIABLE)
+        self.compressed = self.probe.create_publisher(CompressedImage, "/camera/image_raw/compressed", RELIABLE)
+        self.info = self.probe.create_publisher(CameraInfo, "/camera/camera_info", RELIABLE)
+        self.executor = MultiThreadedExecutor(num_threads=4)
+        for node in [*self.nodes, self.probe]:
+            self.executor.add_node(node)
+        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
+        self.thread.start()
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and (self.raw.get_subscription_count() == 0 or self.compressed.get_subscription_count() == 0):
+            time.sleep(0.05)
+        self.stamp = 0
+
+    def header(self):
+        from std_msgs.msg import Header
+
+        self.stamp += 1
+        header = Header(frame_id="camera")
+        header.stamp.sec, header.stamp.nanosec = divmod(self.stamp * 33_333_333, 1_000_000_000)
+        return header
+
+    def send_and_wait(self, publish, expect_answer: bool, timeout_s: float = 20.0) -> None:
+        before = len(self.tracks)
+        publish()
+        deadline = time.monotonic() + (timeout_s if expect_answer else 1.5)
+        while time.monotonic() < deadline and len(self.tracks) == before:
+            time.sleep(0.02)
+        assert (len(self.tracks) > before) == expect_answer, f"expected answer={expect_answer}"
+
+    def close(self) -> None:
+        self.executor.shutdown(timeout_sec=2.0)
+        for node in [*self.nodes, self.probe]:
+            node.destroy_node()
+        rclpy.shutdown()
+
+
+def jpeg_message(frame: np.ndarray, header):
+    from sensor_msgs.msg import CompressedImage
+
+    ok, data = cv2.imencode(".jpg", frame)
+    assert ok
+    message = CompressedImage(header=header, format="jpeg")
+    message.data = data.tobytes()
+    return message
+
+
+def raw_message(frame: np.ndarray, encoding: str, header, data: bytes | None = None):
+    from sensor_msgs.msg import Image
+
+    channels = 1 if frame.ndim == 2 else frame.shape[2]
+    message = Image(header=header, height=frame.shape[0], width=frame.shape[1], encoding=encoding, step=frame.shape[1] * channels)
+    message.data = frame.tobytes() if data is None else data
+    return message
+
+
+@pytest.fixture(scope="module")
+def graph():
+    graph = InProcessGraph()
+    yield graph
+    graph.close()
+
+
+def sky(width: int, height: int) -> np.ndarray:
+    frame = np.zeros((height, width, 3), np.uint8)
+    frame[:] = (200, 170, 140)
+    cv2.circle(frame, (width // 2, height // 2), 6, (40, 40, 40), -1)
+    return frame
+
+
+def test_bad_camera_input_costs_only_that_frame(graph: InProcessGraph) -> None:
+    from sensor_msgs.msg import CameraInfo
+
+    frame = sky(640, 480)
+    graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(frame, graph.header())), True)
+    dropped = graph.buffer.frames_dropped
+    bad_inputs = [
+        lambda: graph.compressed.publish(_garbage_jpeg(graph.header())),
+        lambda: graph.raw.publish(raw_message(frame, "yuv422", graph.header())),
+        lambda: graph.raw.publish(raw_message(frame, "bgr8", graph.header(), data=frame.tobytes()[:1000])),
+        lambda: graph.raw.publish(raw_message(np.zeros((0, 0, 3), np.uint8), "bgr8", graph.header())),
+    ]
+    for publish in bad_inputs:
+        graph.send_and_wait(publish, expect_answer=False)
+    assert graph.buffer.frames_dropped == dropped + len(bad_inputs)
+    # The node is still up, and every supported encoding is processed after the bad frames.
+    for encoding, payload in (("bgr8", frame), ("rgb8", frame[:, :, ::-1].copy()), ("mono8", frame[:, :, 0].copy())):
+        graph.send_and_wait(lambda: graph.raw.publish(raw_message(payload, encoding, graph.header())), True)
+    # A resolution change mid-stream re-initialises and goes on.
+    graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(sky(1280, 720), graph.header())), True)
+    # NaN camera_info: logged and ignored, bearings stay invalid, tracking goes on.
+    info = CameraInfo(width=1280, height=720)
+    info.k = [float("nan")] * 9
+    graph.info.publish(info)
+    graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(sky(1280, 720), graph.header())), True)
+    assert graph.tracker.intrinsics is None
+    assert all(not t.bearing_valid for t in graph.tracks[-1].tracks)
+
+
+def _garbage_jpeg(header):
+    from sensor_msgs.msg import CompressedImage
+
+    message = CompressedImage(header=header, format="jpeg")
+    message.data = b"\xff\xd8 definitely not a jpeg"
+    return message
+
+
+def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: Path) -> None:
+    from gldt_core.io.recording import iter_recorded
+
+    bag = REPO / "bags" / "halmstad_v_drone_001"
+    record = tmp_path / "graph.mcap"
+    process = subprocess.Popen(
+        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--frame-timeout", "1", "--record", str(record)],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+    )
+    lines: list[tuple[float, str]] = []
+    killed = False
+    try:
+        assert process.stdout is not None
+        for line in process.stdout:
+            lines.append((time.time(), line))
+            if not killed and "nodes up" in line:
+                time.sleep(4.0)  # mid-replay
+                pid = next(int(text.split("pid ")[1].rstrip(")\n")) for _, text in lines if "started jptrack_tracker" in text)
+                os.kill(pid, signal.SIGKILL)
+                killed = True
+        process.wait(timeout=600)
+    finally:
+        if process.poll() is None:
+            os.killpg(process.pid, signal.SIGKILL)
+    text = "".join(line for _, line in lines)
+    assert process.returncode == 0, text
+    assert "jptrack_tracker exited" in text and "restarting" in text, text
+    back = [when for when, line in lines if "jptrack_tracker ready" in line]
+    assert len(back) == 2, "the tracker should have come up twice (start + restart):\n" + text
+    summary = next(line for _, line in lines if "replayed" in line)
+    received = int(summary.split(" track messages")[0].rsplit(" ", 1)[1])
+    recorded = list(iter_recorded(record, "gldt/tracks"))
+    assert len(recorded) == received, "the recording lost track messages"
+    stamps_ns = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for _, m, _ in recorded]
+    assert stamps_ns == sorted(stamps_ns), "tracks out of frame order"
+    resumed = [log_ns / 1e9 for _, _, log_ns in recorded if log_ns / 1e9 > back[1]]
+    assert resumed, "no tracks after the restarted tracker came up"
+    assert resumed[0] - back[1] <= 2.0, f"tracks resumed {resumed[0] - back[1]:.1f} s after the restart"
+    assert len(resumed) >= 20, f"only {len(resumed)} frames tracked after the restart"
