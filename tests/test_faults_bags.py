@@ -31,14 +31,6 @@ SAMPLE = Path(__file__).resolve().parents[1] / "bags" / "synth_1080p_multi_uav"
 SAMPLE_MCAP = SAMPLE / "synth_1080p_multi_uav.mcap"
 FPS = 30.0
 
-BAG_READER_REASON = (
-    "io/bag.py BagSource.__init__ opens the bag with rosbags' Reader, which needs the MCAP footer and "
-    "reads every chunk up front: a damaged file raises rosbags ReaderError/SerdeError (not ValueError, "
-    "no file name) and no frame is recovered; damaged record framing inside a chunk silently drops the "
-    "rest of that chunk"
-)
-
-
 # --------------------------------------------------------------------------- helpers
 def _store() -> Any:
     from gldt_core.io.ros_types import typestore
@@ -183,7 +175,6 @@ def test_intact_sample_bag_has_chunks_to_damage() -> None:
 
 
 # --------------------------------------------------------------------------- truncation
-@pytest.mark.xfail(strict=True, reason=BAG_READER_REASON)
 @pytest.mark.parametrize("where", ["inside_header", "third_chunk", "last_bytes"])
 def test_truncated_mcap_keeps_frames_before_the_cut_and_names_the_file(
     tmp_path: Path, caplog: pytest.LogCaptureFixture, where: str
@@ -199,7 +190,6 @@ def test_truncated_mcap_keeps_frames_before_the_cut_and_names_the_file(
     _assert_damage_contract(folder, _frames_before(offset), caplog)
 
 
-@pytest.mark.xfail(strict=True, reason=BAG_READER_REASON)
 @pytest.mark.parametrize("relative, length", [(49, 64), (50, 8), (89, 200)],
                          ids=["first_record", "record_length", "message_payload_header"])
 def test_garbage_over_a_chunk_never_loses_frames_silently(
@@ -215,7 +205,6 @@ def test_garbage_over_a_chunk_never_loses_frames_silently(
     _assert_damage_contract(folder, _frames_before(start + 1), caplog)
 
 
-@pytest.mark.xfail(strict=True, reason=BAG_READER_REASON + "; the CLI then prints a traceback")
 def test_cli_on_a_truncated_bag_fails_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from gldt_core.cli import main
 
@@ -229,10 +218,6 @@ def test_cli_on_a_truncated_bag_fails_with_one_line(tmp_path: Path, capsys: pyte
 
 
 # --------------------------------------------------------------------------- message types
-@pytest.mark.xfail(strict=True, reason=(
-    "io/bag.py _decode_image (line ~189) trusts the topic name: std_msgs/String on /camera/image_raw "
-    "raises TypeError 'a bytes-like object is required, not str' instead of a ValueError naming "
-    "topic, type and file"))
 def test_wrong_message_type_on_the_image_topic_is_a_clear_value_error(tmp_path: Path) -> None:
     store = _store()
     messages = [store.types["std_msgs/msg/String"](data="not an image") for _ in range(3)]
@@ -244,10 +229,6 @@ def test_wrong_message_type_on_the_image_topic_is_a_clear_value_error(tmp_path: 
     assert "std_msgs/msg/String" in text and IMAGE_TOPIC in text and "wrong_type" in text
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "io/bag.py BagSource.__init__ line 252-260: with no camera_info/ground-truth topic, "
-    "reader.messages(connections=[]) yields EVERY message (rosbags treats an empty list as 'all'), "
-    "so image messages are read as CameraInfo: AttributeError 'sensor_msgs__msg__Image' has no 'k'"))
 def test_bag_with_only_an_image_topic_is_readable(tmp_path: Path) -> None:
     store = _store()
     image = _test_image()
@@ -311,9 +292,6 @@ def _bad_frame_contract(folder: Path, caplog: pytest.LogCaptureFixture, bad_inde
         assert any(folder.name in m for m in warned), f"dropped frame {bad_index} without a warning"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "io/bag.py BagSource.__iter__ yields a 0x0 sensor_msgs/Image as a (0, 0, 3) frame with no warning "
-    "(the pipeline then stops on it); imaging.decode_raw_image would refuse it"))
 def test_zero_size_image_mid_stream_is_reported_not_yielded(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     store = _store()
     folder = _write_bag(tmp_path / "zero_size", IMAGE_TOPIC, "sensor_msgs/msg/Image",
@@ -321,9 +299,6 @@ def test_zero_size_image_mid_stream_is_reported_not_yielded(tmp_path: Path, capl
     _bad_frame_contract(folder, caplog, 1, 3)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "io/bag.py _decode_image line 202 reshapes short data: ValueError 'cannot reshape array of size 10 "
-    "into shape (48,192)' names neither the file nor the frame"))
 def test_short_image_payload_mid_stream_names_file_and_frame(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     store = _store()
     folder = _write_bag(tmp_path / "short_payload", IMAGE_TOPIC, "sensor_msgs/msg/Image",
@@ -332,9 +307,6 @@ def test_short_image_payload_mid_stream_names_file_and_frame(tmp_path: Path, cap
     _bad_frame_contract(folder, caplog, 1, 3)
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "io/bag.py _decode_image line 195: an undecodable JPEG mid-bag raises ValueError 'cannot decode compressed "
-    "image of format jpeg' naming neither the file nor the frame, and iteration stops there"))
 def test_garbage_jpeg_mid_stream_names_file_and_frame(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     import cv2
 
@@ -389,9 +361,6 @@ def test_pinhole_intrinsics_refuse_nan_and_inf_in_camera_info(bad: float) -> Non
     assert PinholeIntrinsics.from_k(k).fx > 0
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "io/bag.py BagSource.__init__ line 260 copies CameraInfo.k into camera_matrix without checking it: "
-    "a NaN K is handed on silently (and `gldt bag` would write it into the next bag)"))
 def test_nan_camera_info_in_a_bag_is_refused_or_dropped_with_a_warning(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -1,7 +1,9 @@
 """Sample bags: rosbag2 (MCAP storage) with camera images, camera_info and ground truth.
 
-Written and read with ``rosbags`` (no ROS installation), with the Jazzy typestore plus the
-project's ``gldt_msgs`` types from :func:`gldt_core.io.ros_types.typestore`. Topics:
+Written with ``rosbags`` and read with a strict streaming walk over the MCAP records (no ROS
+installation; see :class:`BagSource` for what happens with damaged files), messages (de)serialized
+with the Jazzy typestore plus the project's ``gldt_msgs`` types from
+:func:`gldt_core.io.ros_types.typestore`. Topics:
 
 - ``/camera/image_raw/compressed`` (``sensor_msgs/CompressedImage``, JPEG) or
   ``/camera/image_raw`` (``sensor_msgs/Image``, ``bgr8``),
@@ -15,9 +17,12 @@ bag without its ``metadata.yaml``.
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
+import struct
 import tempfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Iterator
@@ -182,30 +187,215 @@ def write_bag(
     return BagSummary(path, count, rows, compressed, size_bytes)
 
 
+# --------------------------------------------------------------------------- reading
+#
+# Bags are read with a strict, streaming walk over the MCAP records instead of rosbags' Reader:
+# that Reader needs the summary section at the end of the file (a recorder that was killed leaves
+# none) and reads every chunk up front, so one damaged byte made the whole recording unreadable,
+# and record framing damaged inside a chunk silently ended that chunk. Here every record length is
+# checked against what is left, so damage is found where it is, everything before it is still
+# read, and it is reported (never silently skipped). Messages are decoded with the project's
+# rosbags typestore.
+
+LOG = logging.getLogger("gldt.io.bag")
+
+_MCAP_MAGIC = b"\x89MCAP0\r\n"
+_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END, _OP_FOOTER = 0x03, 0x04, 0x05, 0x06, 0x0F, 0x02
+_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
+_IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
+
+
+class BagDamageError(Exception):
+    """An MCAP file damaged (truncated or corrupt) at byte ``offset``.
+
+    Kept on :attr:`BagSource.damage`; :class:`BagSource` reports it as a one-line ``ValueError``
+    once the frames before it have been yielded, so callers only ever see ValueError.
+    """
+
+    def __init__(self, path: Path, offset: int, reason: str) -> None:
+        super().__init__(f"{path}: {reason} (byte {offset})")
+        self.path = path
+        self.offset = offset
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class _Channel:
+    topic: str
+    msgtype: str
+    encoding: str
+
+
+@dataclass(frozen=True)
+class _RawMessage:
+    path: Path
+    offset: int
+    channel: _Channel
+    log_time: int
+    data: bytes
+
+
+class _Fields:
+    """Bounds-checked little-endian reads from one record body (MCAP's primitive types)."""
+
+    def __init__(self, body: bytes, what: str) -> None:
+        self.body, self.position, self.what = body, 0, what
+
+    def take(self, size: int) -> bytes:
+        if size < 0 or self.position + size > len(self.body):
+            raise ValueError(f"{self.what} record is shorter than its fields")
+        start, self.position = self.position, self.position + size
+        return self.body[start:self.position]
+
+    def integer(self, fmt: str) -> int:
+        value: int = struct.unpack("<" + fmt, self.take(struct.calcsize(fmt)))[0]
+        return value
+
+    def string(self) -> str:
+        try:
+            return self.take(self.integer("I")).decode("utf-8")
+        except UnicodeDecodeError:
+            raise ValueError(f"{self.what} record holds a string that is not UTF-8") from None
+
+
+def _decompress(compression: str, data: bytes, size: int) -> bytes:
+    if compression == "":
+        return data
+    if compression == "zstd":
+        import zstandard
+
+        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
+    if compression == "lz4":
+        import lz4.frame
+
+        return bytes(lz4.frame.decompress(data))
+    raise ValueError(f"chunk compression {compression!r} is not supported (zstd, lz4 or none)")
+
+
+class _McapWalker:
+    """Every message of one MCAP file in file order; raises :class:`BagDamageError` at damage.
+
+    Stops at the DataEnd record: the summary section after it only indexes what was already read,
+    so a file cut inside its summary (or footer) loses nothing and is read in full.
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.schemas: dict[int, str] = {}
+        self.channels: dict[int, _Channel] = {}
+
+    def damage(self, offset: int, reason: str) -> BagDamageError:
+        return BagDamageError(self.path, offset, reason)
+
+    def messages(self) -> Iterator[_RawMessage]:
+        with self.path.open("rb") as stream:
+            size = os.fstat(stream.fileno()).st_size
+            if stream.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
+                raise self.damage(0, "not an MCAP file (bad magic at the start)")
+            offset = len(_MCAP_MAGIC)
+            while True:
+                head = stream.read(9)
+                if len(head) < 9:
+                    raise self.damage(offset, "file ends before the data section does (truncated)")
+                opcode, length = struct.unpack("<BQ", head)
+                if offset + 9 + length > size:
+                    raise self.damage(offset, f"record of {length} bytes runs past the end of the file "
+                                              "(truncated or corrupt)")
+                body = stream.read(length)
+                if opcode in (_OP_DATA_END, _OP_FOOTER):
+                    return
+                try:
+                    if opcode == _OP_CHUNK:
+                        yield from self._chunk(body, offset)
+                    else:
+                        message = self._record(opcode, body, offset, chunk_times=None)
+                        if message is not None:
+                            yield message
+                except ValueError as error:
+                    raise self.damage(offset, str(error)) from None
+                offset += 9 + length
+
+    def _chunk(self, body: bytes, offset: int) -> Iterator[_RawMessage]:
+        fields = _Fields(body, "chunk")
+        start_time, end_time, uncompressed_size = fields.integer("Q"), fields.integer("Q"), fields.integer("Q")
+        crc, compression = fields.integer("I"), fields.string()
+        records_length = fields.integer("Q")
+        # Offsets inside the chunk are reported from the chunk's first record in the file (exact for
+        # uncompressed chunks) so that "byte N" points at the damage.
+        base = offset + 9 + fields.position
+        if records_length != len(body) - fields.position:
+            raise ValueError(f"chunk says its records are {records_length} bytes, it holds "
+                             f"{len(body) - fields.position}")
+        try:
+            records = _decompress(compression, fields.take(records_length), uncompressed_size)
+        except ValueError:
+            raise
+        except Exception as error:  # noqa: BLE001 - any codec failure is damage in this chunk
+            raise ValueError(f"chunk cannot be decompressed ({compression}: {error})") from None
+        if len(records) != uncompressed_size:
+            raise ValueError(f"chunk holds {len(records)} bytes, its header says {uncompressed_size}")
+        if crc and zlib.crc32(records) != crc:
+            raise ValueError("chunk CRC mismatch")
+        position = 0
+        while position < len(records):
+            if position + 9 > len(records):
+                raise self.damage(base + position, "chunk ends inside a record header")
+            opcode, length = struct.unpack_from("<BQ", records, position)
+            if opcode not in (_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE):
+                raise self.damage(base + position, f"chunk holds a record of opcode 0x{opcode:02x}, "
+                                                   "not a schema, channel or message (corrupt framing)")
+            if position + 9 + length > len(records):
+                raise self.damage(base + position, f"chunk record of {length} bytes runs past the chunk end "
+                                                   "(corrupt framing)")
+            body_start = position + 9
+            try:
+                message = self._record(opcode, records[body_start:body_start + length], base + position,
+                                       chunk_times=(start_time, end_time))
+            except ValueError as error:
+                raise self.damage(base + position, str(error)) from None
+            if message is not None:
+                yield message
+            position = body_start + length
+
+    def _record(self, opcode: int, body: bytes, offset: int,
+                chunk_times: tuple[int, int] | None) -> _RawMessage | None:
+        if opcode == _OP_SCHEMA:
+            fields = _Fields(body, "schema")
+            schema_id, name = fields.integer("H"), fields.string()
+            self.schemas[schema_id] = name
+        elif opcode == _OP_CHANNEL:
+            fields = _Fields(body, "channel")
+            channel_id, schema_id = fields.integer("H"), fields.integer("H")
+            topic, encoding = fields.string(), fields.string()
+            if schema_id and schema_id not in self.schemas:
+                raise ValueError(f"channel {topic!r} refers to unknown schema {schema_id}")
+            self.channels[channel_id] = _Channel(topic, self.schemas.get(schema_id, ""), encoding)
+        elif opcode == _OP_MESSAGE:
+            if len(body) < _MESSAGE_HEAD.size:
+                raise ValueError(f"message record of {len(body)} bytes is shorter than its header")
+            channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(body)
+            channel = self.channels.get(channel_id)
+            if channel is None:
+                raise ValueError(f"message on unknown channel {channel_id} (corrupt record)")
+            if chunk_times is not None and chunk_times[1] and not chunk_times[0] <= log_time <= chunk_times[1]:
+                raise ValueError(f"message time {log_time} ns lies outside its chunk's "
+                                 f"{chunk_times[0]}..{chunk_times[1]} ns (corrupt record)")
+            return _RawMessage(self.path, offset, channel, log_time, body[_MESSAGE_HEAD.size:])
+        return None  # indexes, metadata, attachments: not needed to read the frames
+
+
 def _seconds(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
 def _decode_image(message: Any, msgtype: str) -> np.ndarray:
-    import cv2
+    """BGR frame of an Image/CompressedImage; :class:`ImageDecodeError` (a ValueError) if impossible."""
+    from gldt_core.imaging import decode_compressed_image, decode_raw_image
 
     if msgtype == COMPRESSED_TYPE:
-        image = cv2.imdecode(np.frombuffer(message.data, np.uint8), cv2.IMREAD_COLOR)
-        if image is None:
-            raise ValueError(f"cannot decode compressed image of format {message.format!r}")
-        return image
-    data = np.frombuffer(message.data, np.uint8)
-    encoding = message.encoding.lower()
-    channels = {"bgr8": 3, "rgb8": 3, "mono8": 1, "bgra8": 4, "rgba8": 4}.get(encoding)
-    if channels is None:
-        raise ValueError(f"unsupported image encoding {message.encoding!r} (expected bgr8/rgb8/mono8)")
-    rows = data.reshape(message.height, message.step)[:, : message.width * channels]
-    image = rows.reshape(message.height, message.width, channels)
-    conversions = {"rgb8": cv2.COLOR_RGB2BGR, "mono8": cv2.COLOR_GRAY2BGR,
-                   "bgra8": cv2.COLOR_BGRA2BGR, "rgba8": cv2.COLOR_RGBA2BGR}
-    if encoding in conversions:
-        return cv2.cvtColor(np.ascontiguousarray(image), conversions[encoding])
-    return image.copy()
+        return decode_compressed_image(message.data, message.format)
+    return decode_raw_image(message.data, int(message.width), int(message.height), message.encoding,
+                            step=int(message.step), is_bigendian=bool(message.is_bigendian))
 
 
 def _gt_rows(message: Any) -> np.ndarray:
@@ -218,91 +408,220 @@ def _gt_rows(message: Any) -> np.ndarray:
     )
 
 
+def _bag_files(path: Path) -> list[Path]:
+    """The MCAP files of a bag folder (in the order metadata.yaml lists them) or of a ``.mcap`` path."""
+    import yaml
+
+    if path.is_file():
+        return [path]
+    metadata_path = path / "metadata.yaml"
+    if not metadata_path.is_file():
+        raise ValueError(f"{path} is not a rosbag2 folder (no metadata.yaml)")
+    try:
+        info = (yaml.safe_load(metadata_path.read_text()) or {}).get("rosbag2_bagfile_information") or {}
+    except (yaml.YAMLError, UnicodeDecodeError, AttributeError) as error:
+        raise ValueError(f"{metadata_path}: not a readable rosbag2 metadata file ({type(error).__name__})") from None
+    storage = info.get("storage_identifier", "mcap")
+    if storage != "mcap":
+        raise ValueError(f"{path}: storage {storage!r} is not supported (only MCAP bags)")
+    names = info.get("relative_file_paths") or sorted(p.name for p in path.glob("*.mcap"))
+    files = [path / str(name) for name in names]
+    missing = [str(f) for f in files if not f.is_file()]
+    if not files or missing:
+        raise ValueError(f"{path}: bag file(s) missing: {', '.join(missing) or 'no .mcap file'}")
+    return files
+
+
 class BagSource(FrameSource):
-    """Frames of a bag written by :func:`write_bag` (or any bag with the same topics)."""
+    """Frames of a bag written by :func:`write_bag` (or any MCAP bag with the same topics).
+
+    Robustness contract (a recording must never crash the node or lose frames silently):
+
+    * A damaged file (truncated anywhere, or corrupt record framing): the frames before the damage
+      are yielded, then ``ValueError('<file>: damaged after frame N (byte B): ...')``; ``len()``
+      counts those frames, ``damage`` holds the details, and :attr:`ground_truth` warns. A frame
+      whose ground truth lies in the damaged part counts as damaged (never yielded without it).
+      Nothing readable before the damage: ``ValueError`` at open. A file cut only in its summary
+      section (after all data) is read in full.
+    * A frame that cannot be decoded (unreadable message, 0x0 image, short raw payload, bad JPEG):
+      skipped with a warning naming file and frame; the frames after it still come, with their
+      own indices (``index`` counts image messages, so a skipped frame leaves a gap).
+    * A non-image type on the image topic: ``ValueError`` at open naming topic, type and file.
+    * No camera_info / ground-truth topic: no camera matrix / empty ground truth. A CameraInfo
+      whose K is not a usable pinhole matrix (NaN, inf, fx <= 0) is ignored with a warning.
+
+    Messages are yielded in file order (the order they were recorded in).
+    """
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
-        from rosbags.rosbag2 import Reader
-
         from gldt_core.io.ros_types import typestore
 
         self.path = Path(path)
         if not self.path.exists():
             raise FileNotFoundError(f"bag not found: {self.path}")
-        bag_dir = self.path.parent if self.path.is_file() else self.path
-        if not (bag_dir / "metadata.yaml").is_file():
-            raise ValueError(f"{bag_dir} is not a rosbag2 folder (no metadata.yaml)")
+        self._files = _bag_files(self.path)
+        self._bag_dir = self.path.parent if self.path.is_file() else self.path
+        self.name = self._bag_dir.name if self.path.is_dir() else self.path.stem
         self._store = typestore()
-        self._bag_dir = bag_dir
-        self.name = bag_dir.name
-        with Reader(bag_dir) as reader:
-            topics = {c.topic: c for c in reader.connections}
-            if COMPRESSED_TOPIC in topics:
-                self.image_topic = COMPRESSED_TOPIC
-            elif IMAGE_TOPIC in topics:
-                self.image_topic = IMAGE_TOPIC
-            else:
-                raise ValueError(
-                    f"{bag_dir}: no {IMAGE_TOPIC} or {COMPRESSED_TOPIC} topic "
-                    f"(topics: {sorted(topics)})"
-                )
-            self._count = sum(c.msgcount for c in reader.connections if c.topic == self.image_topic)
-            self._gt_by_stamp: dict[int, Any] = {}
-            self.camera_matrix = None
-            wanted = [c for c in reader.connections if c.topic in (GROUND_TRUTH_TOPIC, CAMERA_INFO_TOPIC)]
-            info_size: tuple[int, int] | None = None
-            for connection, _, raw in reader.messages(connections=wanted):
-                message = self._store.deserialize_cdr(raw, connection.msgtype)
-                key = int(round(_seconds(message.header.stamp) * 1e9))
-                if connection.topic == GROUND_TRUTH_TOPIC:
-                    self._gt_by_stamp[key] = message
-                elif self.camera_matrix is None:
-                    self.camera_matrix = np.asarray(message.k, float).reshape(3, 3)
-                    info_size = (int(message.width), int(message.height))
-            image_conns = [c for c in reader.connections if c.topic == self.image_topic]
-            stamps = []
-            first_size = None
-            for connection, timestamp, raw in reader.messages(connections=image_conns):
-                stamps.append(timestamp)
-                if first_size is None:
-                    first = _decode_image(self._store.deserialize_cdr(raw, connection.msgtype), connection.msgtype)
-                    first_size = (first.shape[1], first.shape[0])
-                if len(stamps) >= 2 and first_size is not None and info_size is not None:
-                    break
-        self.size = first_size or info_size or (0, 0)
-        if len(stamps) >= 2 and stamps[1] > stamps[0]:
-            self.fps = 1e9 / (stamps[1] - stamps[0])
-        else:
-            self.fps = 30.0
+        self.camera_matrix: np.ndarray | None = None
+        self._gt_by_stamp: dict[int, Any] = {}
+        self._scan()
 
+    # ---------------------------------------------------------------- opening
+    def _messages(self) -> Iterator[_RawMessage]:
+        for file in self._files:
+            yield from _McapWalker(file).messages()
+
+    def _deserialize(self, raw: _RawMessage) -> Any:
+        """The message, or ValueError naming file, topic and type when its bytes do not decode."""
+        if raw.channel.encoding != "cdr":
+            raise ValueError(f"{raw.path}: {raw.channel.topic} uses message encoding "
+                             f"{raw.channel.encoding!r}, not cdr")
+        try:
+            return self._store.deserialize_cdr(raw.data, raw.channel.msgtype)
+        except Exception as error:  # noqa: BLE001 - rosbags raises several types on bad bytes
+            raise ValueError(f"{raw.path}: {raw.channel.topic} message at byte {raw.offset} is not a "
+                             f"valid {raw.channel.msgtype} ({type(error).__name__}: {error})") from None
+
+    def _scan(self) -> None:
+        """One pass over the bag: topics, frame count, first size, fps, camera matrix, ground truth."""
+        image_logs: dict[str, list[int]] = {COMPRESSED_TOPIC: [], IMAGE_TOPIC: []}
+        image_stamps: dict[str, list[int | None]] = {COMPRESSED_TOPIC: [], IMAGE_TOPIC: []}
+        image_types: dict[str, str] = {}
+        first_size: dict[str, tuple[int, int]] = {}
+        topics: set[str] = set()
+        info_size: tuple[int, int] | None = None
+        bad_k: str | None = None
+        self.damage: BagDamageError | None = None
+        try:
+            for raw in self._messages():
+                topic, msgtype = raw.channel.topic, raw.channel.msgtype
+                topics.add(topic)
+                if topic in image_logs:
+                    image_types.setdefault(topic, msgtype)
+                    image_logs[topic].append(raw.log_time)
+                    stamp = None
+                    if msgtype in _IMAGE_TYPES:
+                        try:
+                            message = self._deserialize(raw)
+                            stamp = int(round(_seconds(message.header.stamp) * 1e9))
+                            if topic not in first_size:
+                                image = _decode_image(message, msgtype)
+                                first_size[topic] = (image.shape[1], image.shape[0])
+                        except ValueError:
+                            pass  # reported (with its frame index) when iterating
+                    image_stamps[topic].append(stamp)
+                elif topic == GROUND_TRUTH_TOPIC and msgtype == GROUND_TRUTH_TYPE:
+                    try:
+                        message = self._deserialize(raw)
+                    except ValueError as error:
+                        LOG.warning("%s; its ground truth is lost", error)
+                        continue
+                    self._gt_by_stamp[int(round(_seconds(message.header.stamp) * 1e9))] = message
+                elif topic == CAMERA_INFO_TOPIC and msgtype == CAMERA_INFO_TYPE:
+                    try:
+                        message = self._deserialize(raw)
+                    except ValueError as error:
+                        LOG.warning("%s; ignored", error)
+                        continue
+                    if self.camera_matrix is None:  # the first usable K (a camera's K does not change)
+                        try:
+                            self.camera_matrix = self._checked_k(message.k)
+                        except ValueError as error:
+                            bad_k = bad_k or str(error)
+                            continue
+                        info_size = (int(message.width), int(message.height))
+        except BagDamageError as damage:
+            self.damage = damage
+        if bad_k is not None and self.camera_matrix is None:
+            LOG.warning("%s: no usable camera_info (%s); the camera matrix is unknown", self._label, bad_k)
+        self.image_topic = next((t for t in (COMPRESSED_TOPIC, IMAGE_TOPIC) if image_logs[t]), None)
+        if self.image_topic is None:
+            if self.damage is not None:
+                raise ValueError(f"{self._damage_text(0)}; no image frame before it") from None
+            raise ValueError(f"{self._label}: no {IMAGE_TOPIC} or {COMPRESSED_TOPIC} messages "
+                             f"(topics: {sorted(topics)})")
+        msgtype = image_types[self.image_topic]
+        if msgtype not in _IMAGE_TYPES:
+            raise ValueError(f"{self._label}: topic {self.image_topic} carries {msgtype or 'an unknown type'}, "
+                             f"not {IMAGE_TYPE} or {COMPRESSED_TYPE}")
+        self._image_stamps = image_stamps[self.image_topic]
+        self._count = len(self._image_stamps)
+        if self.damage is not None and self._gt_by_stamp:
+            # The last frames before the damage may have lost their ground truth to it (a frame's
+            # messages can straddle chunks): they end the readable part rather than come with none.
+            while self._count and self._image_stamps[self._count - 1] not in self._gt_by_stamp:
+                self._count -= 1
+        if self.damage is not None and self._count == 0:
+            raise ValueError(f"{self._damage_text(0)}; no complete frame before it")
+        self.size = first_size.get(self.image_topic) or info_size or (0, 0)
+        logs = image_logs[self.image_topic]
+        self.fps = 1e9 / (logs[1] - logs[0]) if len(logs) >= 2 and logs[1] > logs[0] else 30.0
+
+    @property
+    def _label(self) -> str:
+        return str(self._files[0]) if len(self._files) == 1 else str(self._bag_dir)
+
+    def _damage_text(self, frames_before: int) -> str:
+        assert self.damage is not None
+        where = f"after frame {frames_before - 1}" if frames_before else "before the first frame"
+        return f"{self.damage.path}: damaged {where} (byte {self.damage.offset}): {self.damage.reason}"
+
+    def _checked_k(self, k: Any) -> np.ndarray:
+        from gldt_core.geometry import PinholeIntrinsics
+
+        values = np.asarray(k, dtype=np.float64).reshape(-1)
+        PinholeIntrinsics.from_k(values)  # raises ValueError naming camera_info.k
+        return values.reshape(3, 3)
+
+    # ---------------------------------------------------------------- reading
     def __len__(self) -> int:
+        """Image messages readable (before any damage); undecodable ones are skipped when iterating."""
         return self._count
 
     def __iter__(self) -> Iterator[Frame]:
-        from rosbags.rosbag2 import Reader
-
-        with Reader(self._bag_dir) as reader:
-            connections = [c for c in reader.connections if c.topic == self.image_topic]
-            for index, (connection, _, raw) in enumerate(reader.messages(connections=connections)):
-                message = self._store.deserialize_cdr(raw, connection.msgtype)
-                image = _decode_image(message, connection.msgtype)
+        index = -1
+        try:
+            for raw in self._messages():
+                if raw.channel.topic != self.image_topic:
+                    continue
+                if self.damage is not None and index + 1 >= self._count:
+                    raise self.damage
+                index += 1
+                try:
+                    message = self._deserialize(raw)
+                    image = _decode_image(message, raw.channel.msgtype)
+                except ValueError as error:  # one bad frame must not stop the node
+                    reason = str(error).removeprefix(f"{raw.path}: ")
+                    LOG.warning("%s: frame %d skipped: %s", raw.path, index, reason)
+                    continue
                 stamp = _seconds(message.header.stamp)
                 gt_message = self._gt_by_stamp.get(int(round(stamp * 1e9)))
                 rows = _gt_rows(gt_message) if gt_message is not None else empty_ground_truth()
                 if len(rows):
                     rows[:, 0] = index + 1
                 yield Frame(index=index, stamp=stamp, image=image, ground_truth=rows)
+        except BagDamageError:
+            raise ValueError(self._damage_text(index + 1)) from None
 
     @property
     def ground_truth(self) -> np.ndarray:
-        """All ground-truth rows, frame numbers following image order (1-based)."""
-        stamps = sorted(self._gt_by_stamp)
+        """All ground-truth rows, numbered by the image frame with the same stamp (1-based)."""
+        index_of = {stamp: k for k, stamp in enumerate(self._image_stamps) if stamp is not None}
         tables = []
-        for index, key in enumerate(stamps):
+        orphans = 0
+        for key in sorted(self._gt_by_stamp, key=lambda s: index_of.get(s, -1)):
+            if key not in index_of:
+                orphans += 1
+                continue
             rows = _gt_rows(self._gt_by_stamp[key])
             if len(rows):
-                rows[:, 0] = index + 1
+                rows[:, 0] = index_of[key] + 1
                 tables.append(rows)
+        if self.damage is not None:  # iterating raises it; reading only the ground truth must not hide it
+            LOG.warning("%s; ground truth of the %d frames before it only", self._damage_text(self._count), self._count)
+        if orphans:
+            LOG.warning("%s: %d ground-truth messages match no readable image frame; left out", self._label, orphans)
         return np.concatenate(tables) if tables else empty_ground_truth()
 
 
