@@ -1,0 +1,259 @@
+"""The multi-stage association loop shared by ByteTrack and JPTrack.
+
+ByteTrack (Zhang et al., 2022) and JPTrack differ only in the cost of a (track, detection) pair
+and in JPTrack's third, PMR stage, so both run this loop:
+
+1. high-score detections (``score >= t_h``) vs active tracks and recently lost tracks;
+2. remaining active tracks vs low-score detections (``t_l <= score < t_h``); active tracks still
+   unmatched become LOST;
+3. (JPTrack with PMR) lost tracks vs the remaining detections by :mod:`.pmr`;
+4. tentative (one-hit) tracks vs the remaining high-score detections; unmatched tentative tracks
+   are dropped (ByteTrack's "unconfirmed" step);
+5. remaining high-score detections with ``score >= new_track_thresh`` start tentative tracks,
+   low-score ones are dropped; lost tracks older than their memory are removed.
+
+Time is the caller's timestamp in seconds; nothing counts frames except ``frames_since_update``.
+"""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from gldt_core.track.geometry import iou_xyxy, validate_detections, validate_time
+from gldt_core.track.jcma import FORBIDDEN
+from gldt_core.track.state import Track, TrackState, advance_tracks, update_tracks
+
+OUTPUT_STATES = (TrackState.CONFIRMED, TrackState.RECOVERED)
+
+
+def assign(cost: np.ndarray, allowed: np.ndarray) -> list[tuple[int, int]]:
+    """Minimum-cost one-to-one matching restricted to ``allowed`` pairs."""
+    if cost.size == 0 or not allowed.any():
+        return []
+    masked = np.where(allowed, cost, FORBIDDEN)
+    rows, cols = linear_sum_assignment(masked)
+    return [(int(r), int(c)) for r, c in zip(rows, cols) if allowed[r, c]]
+
+
+class MultiStageTracker:
+    """Base class: state, validation, the stage loop. Subclasses provide ``_pair_cost``."""
+
+    #: Stage names passed to ``_pair_cost``.
+    STAGE_HIGH, STAGE_LOW, STAGE_TENTATIVE = "high", "low", "tentative"
+
+    def __init__(
+        self,
+        *,
+        t_high: float,
+        t_low: float,
+        new_track_thresh: float,
+        jcma_window_s: float,
+        memory_s: float,
+        ref_fps: float,
+        history_len: int,
+        image_size: tuple[int, int],
+    ) -> None:
+        if not 0.0 <= t_low <= t_high <= 1.0:
+            raise ValueError(f"need 0 <= t_l <= t_h <= 1, got t_l={t_low}, t_h={t_high}")
+        if ref_fps <= 0 or memory_s < 0 or jcma_window_s < 0:
+            raise ValueError("ref_fps must be > 0 and lost-track windows >= 0")
+        self._t_high = t_high
+        self._t_low = t_low
+        self._new_thresh = new_track_thresh
+        self._window_s = jcma_window_s
+        self._memory_s = max(memory_s, jcma_window_s)
+        self._ref_fps = ref_fps
+        self._history_len = history_len
+        self._image_size = (float(image_size[0]), float(image_size[1]))
+        self.reset()
+
+    # --- public API -------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Forget every track; ids restart at 1 (ids are per tracker instance)."""
+        self._tracks: list[Track] = []
+        self._next_id = 1
+        self._last_t: float | None = None
+        self._updates = 0
+
+    @property
+    def tracks(self) -> list[Track]:
+        """Live tracks (tentative, confirmed, recovered and lost), oldest first."""
+        return list(self._tracks)
+
+    def predict(self, t: float) -> np.ndarray:
+        """Predicted ``[x1, y1, x2, y2, track_id]`` at ``t`` of confirmed/recovered tracks and of
+        lost tracks within the association window; never changes any state."""
+        rows = []
+        for tr in self._tracks:
+            if tr.state in OUTPUT_STATES or (
+                tr.state is TrackState.LOST and t - tr.last_update_t <= self._window_s
+            ):
+                rows.append([*tr.predicted_xyxy(float(t)), float(tr.track_id)])
+        return np.asarray(rows, dtype=np.float64).reshape(-1, 5)
+
+    def update(
+        self,
+        dets: np.ndarray | None,
+        t: float,
+        *,
+        rois: np.ndarray | None = None,
+        frame: int | None = None,
+    ) -> np.ndarray:
+        """Process one frame: ``dets`` ``(N, 5)`` ``[x1, y1, x2, y2, score]`` px at ``t`` seconds.
+
+        ``rois`` (optional, ``(N, 4)`` xyxy) is the detection window each detection came from (the
+        local-detection ROI); ``frame`` is only used in error messages. An empty ``dets`` is a valid
+        empty frame: tracks coast on their prediction. Returns ``(M, 6)``
+        ``[x1, y1, x2, y2, track_id, score]`` of the confirmed/recovered tracks updated now.
+        """
+        t = validate_time(t, self._last_t, frame)
+        dets = validate_detections(dets, t, frame)
+        rel = self._relative_positions(dets, rois, t, frame)
+        self._last_t = t
+        first_frame = self._updates == 0
+        self._updates += 1
+        advance_tracks(self._tracks, t)
+
+        scores = dets[:, 4]
+        high = np.flatnonzero(scores >= self._t_high)
+        low = np.flatnonzero((scores >= self._t_low) & (scores < self._t_high))
+        active = [tr for tr in self._tracks if tr.state in OUTPUT_STATES]
+        lost = [tr for tr in self._tracks if tr.state is TrackState.LOST]
+        tentative = [tr for tr in self._tracks if tr.state is TrackState.TENTATIVE]
+        updated: set[int] = set()
+
+        def apply(tracks: Sequence[Track], det_idx: np.ndarray, pairs: list[tuple[int, int]],
+                  new_state: TrackState | None) -> tuple[list[Track], np.ndarray]:
+            used_t, used_d = set(), set()
+            matched = [tracks[r] for r, _ in pairs]
+            rows = [int(det_idx[c]) for _, c in pairs]
+            update_tracks(matched, dets[rows, :4], dets[rows, 4], t, [rel[d] for d in rows])
+            for r, c in pairs:
+                tr = tracks[r]
+                if new_state is not None:
+                    tr.state = new_state
+                elif tr.state in (TrackState.LOST, TrackState.RECOVERED):
+                    tr.state = TrackState.CONFIRMED
+                updated.add(id(tr))
+                used_t.add(r)
+                used_d.add(c)
+            rest_t = [tr for i, tr in enumerate(tracks) if i not in used_t]
+            rest_d = np.asarray([d for i, d in enumerate(det_idx) if i not in used_d], dtype=np.int64)
+            return rest_t, rest_d
+
+        # Stage 1: high-score detections vs active and recently lost tracks.
+        pool = active + [tr for tr in lost if t - tr.last_update_t <= self._window_s]
+        cost, allowed = self._pair_cost(self.STAGE_HIGH, pool, dets, high, t)
+        rest_pool, rest_high = apply(pool, high, assign(cost, allowed), None)
+
+        # Stage 2: remaining active tracks vs low-score detections.
+        rest_active = [tr for tr in rest_pool if tr.state in OUTPUT_STATES]
+        cost, allowed = self._pair_cost(self.STAGE_LOW, rest_active, dets, low, t)
+        still_active, rest_low = apply(rest_active, low, assign(cost, allowed), None)
+        for tr in still_active:
+            tr.mark_lost()
+
+        # Stage 3: memory recovery of lost tracks (JPTrack's PMR; ByteTrack has none). It runs
+        # before tentative tracks claim detections: a lost track's memory outranks a one-hit track.
+        lost_now = [tr for tr in self._tracks if tr.state is TrackState.LOST and id(tr) not in updated]
+        rest_high, rest_low = self._recover(lost_now, dets, rest_high, rest_low, t, rel, updated)
+
+        # Tentative tracks vs the remaining high-score detections (ByteTrack's unconfirmed step).
+        cost, allowed = self._pair_cost(self.STAGE_TENTATIVE, tentative, dets, rest_high, t)
+        dead_tentative, rest_high = apply(tentative, rest_high, assign(cost, allowed), TrackState.CONFIRMED)
+        dead_ids = {id(tr) for tr in dead_tentative}
+
+        # New tracks from the remaining confident detections.
+        for d in rest_high:
+            if dets[d, 4] >= self._new_thresh:
+                state = TrackState.CONFIRMED if first_frame else TrackState.TENTATIVE
+                self._tracks.append(Track(self._next_id, dets[d, :4], dets[d, 4], t, state,
+                                          self._ref_fps, self._history_len, rel[d]))
+                updated.add(id(self._tracks[-1]))
+                self._next_id += 1
+
+        kept = []
+        for tr in self._tracks:
+            if id(tr) in dead_ids:
+                continue
+            if id(tr) not in updated:
+                tr.mark_missed()
+                if tr.state is TrackState.LOST and t - tr.last_update_t > self._memory_s:
+                    continue
+            kept.append(tr)
+        self._tracks = self._remove_duplicates(kept)
+
+        out = [
+            [*tr.box_xyxy, float(tr.track_id), tr.score]
+            for tr in self._tracks
+            if tr.state in OUTPUT_STATES and id(tr) in updated
+        ]
+        return np.asarray(out, dtype=np.float64).reshape(-1, 6)
+
+    # --- hooks ------------------------------------------------------------------------------
+    def _pair_cost(
+        self, stage: str, tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, t: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Cost ``(len(tracks), len(det_idx))`` and the mask of pairs allowed to match."""
+        raise NotImplementedError
+
+    def _recover(
+        self, lost: list[Track], dets: np.ndarray, rest_high: np.ndarray, rest_low: np.ndarray,
+        t: float, rel: list[tuple[float, float]], updated: set[int],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Stage 3; the default (ByteTrack) recovers nothing."""
+        return rest_high, rest_low
+
+    # --- helpers ----------------------------------------------------------------------------
+    def _relative_positions(
+        self, dets: np.ndarray, rois: np.ndarray | None, t: float, frame: int | None
+    ) -> list[tuple[float, float]]:
+        """(x_rel, y_rel) of each detection centre inside its ROI (the image when no ROI)."""
+        if len(dets) == 0:
+            return []
+        cx = (dets[:, 0] + dets[:, 2]) * 0.5
+        cy = (dets[:, 1] + dets[:, 3]) * 0.5
+        if rois is None:
+            x0 = y0 = np.zeros(len(dets))
+            w = np.full(len(dets), self._image_size[0])
+            h = np.full(len(dets), self._image_size[1])
+        else:
+            r = np.asarray(rois, dtype=np.float64)
+            if r.shape != (len(dets), 4) or not np.all(np.isfinite(r)):
+                where = f"frame {frame}" if frame is not None else f"t={t:.6f} s"
+                raise ValueError(f"{where}: rois must be a finite ({len(dets)}, 4) xyxy array, got shape {r.shape}")
+            x0, y0 = r[:, 0], r[:, 1]
+            w = np.maximum(r[:, 2] - r[:, 0], 1e-9)
+            h = np.maximum(r[:, 3] - r[:, 1], 1e-9)
+        return list(zip(((cx - x0) / w).tolist(), ((cy - y0) / h).tolist()))
+
+    @staticmethod
+    def _remove_duplicates(tracks: list[Track]) -> list[Track]:
+        """ByteTrack's remove_duplicate_stracks: an active and a lost track on the same spot
+        (IoU > 0.85) are one object; keep the older one."""
+        active = [tr for tr in tracks if tr.state in OUTPUT_STATES]
+        lost = [tr for tr in tracks if tr.state is TrackState.LOST]
+        if not active or not lost:
+            return tracks
+        iou = iou_xyxy(np.array([tr.box_xyxy for tr in active]), np.array([tr.box_xyxy for tr in lost]))
+        drop = set()
+        for i, j in zip(*np.nonzero(iou > 0.85)):
+            a, b = active[i], lost[j]
+            drop.add(id(b) if a.age_s >= b.age_s else id(a))
+        return [tr for tr in tracks if id(tr) not in drop]
+
+
+def iou_pair_cost(
+    tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, thresh: float, fuse_score: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """ByteTrack's cost: ``1 - IoU`` (times the detection score when fused), allowed if <= thresh."""
+    if len(tracks) == 0 or len(det_idx) == 0:
+        return np.zeros((len(tracks), len(det_idx))), np.zeros((len(tracks), len(det_idx)), dtype=bool)
+    boxes = np.array([tr.box_xyxy for tr in tracks])
+    sub = dets[det_idx]
+    iou = iou_xyxy(boxes, sub[:, :4])
+    cost = 1.0 - iou * sub[None, :, 4] if fuse_score else 1.0 - iou
+    return cost, cost <= thresh

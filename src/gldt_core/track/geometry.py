@@ -1,0 +1,101 @@
+"""Box helpers shared by the trackers: vectorised IoU, centres and input validation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def iou_xyxy(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """IoU matrix ``(len(a), len(b))`` of ``[x1, y1, x2, y2]`` boxes."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((len(a), len(b)))
+    ix1 = np.maximum(a[:, None, 0], b[None, :, 0])
+    iy1 = np.maximum(a[:, None, 1], b[None, :, 1])
+    ix2 = np.minimum(a[:, None, 2], b[None, :, 2])
+    iy2 = np.minimum(a[:, None, 3], b[None, :, 3])
+    inter = np.clip(ix2 - ix1, 0, None) * np.clip(iy2 - iy1, 0, None)
+    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
+    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area_a[:, None] + area_b[None, :] - inter
+    return np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
+
+
+def xyxy_to_cxcywh(boxes: np.ndarray) -> np.ndarray:
+    """``[x1, y1, x2, y2]`` -> ``[cx, cy, w, h]`` (any leading shape)."""
+    out = np.empty_like(boxes, dtype=np.float64)
+    out[..., 0] = (boxes[..., 0] + boxes[..., 2]) * 0.5
+    out[..., 1] = (boxes[..., 1] + boxes[..., 3]) * 0.5
+    out[..., 2] = boxes[..., 2] - boxes[..., 0]
+    out[..., 3] = boxes[..., 3] - boxes[..., 1]
+    return out
+
+
+def cxcywh_to_xyxy(boxes: np.ndarray) -> np.ndarray:
+    """``[cx, cy, w, h]`` -> ``[x1, y1, x2, y2]`` (any leading shape)."""
+    out = np.empty_like(boxes, dtype=np.float64)
+    out[..., 0] = boxes[..., 0] - boxes[..., 2] * 0.5
+    out[..., 1] = boxes[..., 1] - boxes[..., 3] * 0.5
+    out[..., 2] = boxes[..., 0] + boxes[..., 2] * 0.5
+    out[..., 3] = boxes[..., 1] + boxes[..., 3] * 0.5
+    return out
+
+
+_FIELDS = ("x1", "y1", "x2", "y2", "score")
+
+
+def _where(t: float, frame: int | None) -> str:
+    return f"frame {frame}" if frame is not None else f"t={t:.6f} s"
+
+
+def validate_time(t: float, last_t: float | None, frame: int | None) -> float:
+    """Check the timestamp is finite and strictly after the previous one."""
+    try:
+        t = float(t)
+    except (TypeError, ValueError):
+        raise ValueError(f"{_where(0.0, frame)}: timestamp t={t!r} is not a number") from None
+    if not math.isfinite(t):
+        raise ValueError(f"{_where(t, frame)}: timestamp t is NaN or infinite")
+    if last_t is not None and t <= last_t:
+        what = "repeated" if t == last_t else "went backwards"
+        raise ValueError(
+            f"{_where(t, frame)}: field t: time {what} (t={t:.6f} s after t={last_t:.6f} s); "
+            "frames must arrive in order with increasing timestamps"
+        )
+    return t
+
+
+def validate_detections(dets: np.ndarray | None, t: float, frame: int | None) -> np.ndarray:
+    """Return ``dets`` as an ``(N, 5)`` float64 array or raise a ValueError naming frame and field.
+
+    ``None`` or an empty array is an empty frame (valid: tracks coast on their prediction).
+    """
+    if dets is None:
+        return np.zeros((0, 5))
+    arr = np.asarray(dets, dtype=np.float64)
+    if arr.size == 0:
+        return np.zeros((0, 5))
+    if arr.ndim != 2 or arr.shape[1] != 5:
+        raise ValueError(
+            f"{_where(t, frame)}: detections must be an (N, 5) array [x1, y1, x2, y2, score], "
+            f"got shape {arr.shape}"
+        )
+    finite = np.isfinite(arr)
+    if not finite.all():
+        row, col = np.argwhere(~finite)[0]
+        raise ValueError(f"{_where(t, frame)}: detection {row} field {_FIELDS[col]} is NaN or infinite")
+    bad_w = arr[:, 2] <= arr[:, 0]
+    bad_h = arr[:, 3] <= arr[:, 1]
+    if bad_w.any() or bad_h.any():
+        row = int(np.flatnonzero(bad_w | bad_h)[0])
+        field = "x2" if bad_w[row] else "y2"
+        raise ValueError(
+            f"{_where(t, frame)}: detection {row} field {field}: box has non-positive size "
+            f"({arr[row, :4].tolist()})"
+        )
+    bad_s = (arr[:, 4] < 0.0) | (arr[:, 4] > 1.0)
+    if bad_s.any():
+        row = int(np.flatnonzero(bad_s)[0])
+        raise ValueError(f"{_where(t, frame)}: detection {row} field score={arr[row, 4]:g} is outside [0, 1]")
+    return arr

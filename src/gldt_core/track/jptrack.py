@@ -1,0 +1,198 @@
+"""JPTrack: ByteTrack's staged association with the JCMA cost and PMR recovery (paper, Tracking).
+
+``JPTrack(JPTrackConfig())`` is the full tracker; ``use_pmr=False`` is the ablation's middle row
+(JCMA only) and ``use_jcma=False, use_pmr=False`` falls back to ByteTrack's IoU association. Every
+Table I value is a config field with the paper's default. What the paper leaves open is decided in
+:mod:`.jcma` and :mod:`.pmr` (their docstrings say what and why); the remaining choices:
+
+* ``t_h = 0.5``, ``t_l = 0.1`` and the new-track threshold 0.6 are ByteTrack's (the paper names
+  ``t_h``/``t_l`` but gives no values); JCMA's gates (``jcma_thresh_*``) play the role of
+  ByteTrack's IoU thresholds.
+* Lost tracks take part in JCMA's first stage for ``lost_window_s`` (ByteTrack's 30-frame
+  buffer, 1 s); after that only PMR can bring them back, for ``pmr_memory_s`` more seconds. With
+  PMR off, lost tracks are forgotten after ``lost_window_s`` exactly like ByteTrack.
+* PMR considers the remaining high-score and (``pmr_use_low``) low-score detections, as the
+  paper's stage 3 does; a recovered track keeps its id and is reported in state RECOVERED. It runs
+  before ByteTrack's tentative-track step, so a lost track's memory outranks a one-hit newborn.
+* PMR models a lost track only once it has been lost for ``pmr_min_lost_s`` (0.1 s, three frames
+  at 30 Hz): shorter gaps are handled by JCMA, whose first stage sees every recently lost track,
+  and fitting a mixture for every single missed frame of 50 targets would break the 10 ms budget.
+  The mixture is then fitted once and kept until the track is updated again.
+* ``pmr_vel_std`` (2 px per reference frame) is the unmodelled velocity change allowed during an
+  occlusion: on the benchmark's real drone clips 0.5 recovered too few tracks after 1-2 s bursts
+  (IDSW 49 vs 32 at 2.0 over 40 clips), while wider gates start to pick clutter.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from gldt_core.track.base import MultiStageTracker, assign, iou_pair_cost
+from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
+from gldt_core.track.pmr import c_time, fit_pmr, p_match
+from gldt_core.track.state import Track, TrackState
+
+
+@dataclass(frozen=True)
+class JPTrackConfig:
+    """All JPTrack switches and weights; defaults are the paper's (Table I) where it gives them."""
+
+    use_jcma: bool = True
+    use_pmr: bool = True
+    # Score split (ByteTrack's values; the paper names t_h and t_l without values).
+    t_h: float = 0.5
+    t_l: float = 0.1
+    new_track_thresh: float = 0.6
+    # JCMA weights (Table I): w1..w4 of eq. 9, beta1..beta3 of eq. 13.
+    w1: float = 0.3
+    w2: float = 0.3
+    w3: float = 0.2
+    w4: float = 0.2
+    beta1: float = 0.4
+    beta2: float = 0.4
+    beta3: float = 0.2
+    # JCMA gates per stage (maximum joint cost of a match).
+    jcma_thresh_high: float = 0.7
+    jcma_thresh_low: float = 0.6
+    jcma_thresh_tentative: float = 0.6
+    # PMR (Table I: gamma, tau_t).
+    gamma: float = 0.1
+    tau_t: float = 0.6
+    pmr_pos_std_size: float = 0.5
+    pmr_vel_std: float = 2.0
+    pmr_use_low: bool = True
+    pmr_memory_s: float = 3.0
+    pmr_min_lost_s: float = 0.1
+    pmr_backend: str = "numpy"  # "numpy" (same EM as scikit-learn, faster) or "sklearn"
+    # Shared.
+    lost_window_s: float = 1.0
+    ref_fps: float = 30.0
+    history_len: int = 30
+    image_size: tuple[int, int] = (1920, 1080)
+    # ByteTrack's IoU thresholds, used only when use_jcma is False.
+    iou_match_thresh: float = 0.8
+    iou_second_thresh: float = 0.5
+    iou_unconfirmed_thresh: float = 0.7
+
+    def weights(self) -> JcmaWeights:
+        return JcmaWeights(w_iou=self.w1, w_dist=self.w2, w_motion=self.w3, w_rel=self.w4,
+                           b_speed=self.beta1, b_direction=self.beta2, b_acceleration=self.beta3)
+
+
+class JPTrack(MultiStageTracker):
+    """``JPTrack(config).update(dets, t) -> (M, 6) [x1, y1, x2, y2, track_id, score]``."""
+
+    def __init__(self, config: JPTrackConfig | None = None) -> None:
+        self.config = config or JPTrackConfig()
+        c = self.config
+        self._weights = c.weights()
+        memory = c.lost_window_s + (c.pmr_memory_s if c.use_pmr else 0.0)
+        super().__init__(t_high=c.t_h, t_low=c.t_l, new_track_thresh=c.new_track_thresh,
+                         jcma_window_s=c.lost_window_s, memory_s=memory, ref_fps=c.ref_fps,
+                         history_len=c.history_len, image_size=c.image_size)
+        #: Number of PMR mixtures fitted since construction (the bench reports it).
+        self.pmr_fits = 0
+        if c.pmr_backend not in ("numpy", "sklearn"):
+            raise ValueError(f"pmr_backend must be 'numpy' or 'sklearn', got {c.pmr_backend!r}")
+        if c.use_pmr and c.pmr_backend == "sklearn":
+            import sklearn.mixture  # noqa: F401  (import now, not on the first lost track)
+
+    # --- stage costs ------------------------------------------------------------------------
+    def _pair_cost(
+        self, stage: str, tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, t: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        c = self.config
+        if not c.use_jcma:
+            thresh = {self.STAGE_HIGH: c.iou_match_thresh, self.STAGE_LOW: c.iou_second_thresh}.get(
+                stage, c.iou_unconfirmed_thresh)
+            return iou_pair_cost(tracks, dets, det_idx, thresh, stage != self.STAGE_LOW)
+        n_t, n_d = len(tracks), len(det_idx)
+        if n_t == 0 or n_d == 0:
+            return np.zeros((n_t, n_d)), np.zeros((n_t, n_d), dtype=bool)
+        motion = self._motion(tracks, t)
+        centres = (motion.pred_xyxy[:, :2] + motion.pred_xyxy[:, 2:4]) * 0.5
+        cost, gate = jcma_cost(motion, dets[det_idx, :4], centres, np.arange(n_t), self._weights)
+        thresh = {self.STAGE_HIGH: c.jcma_thresh_high, self.STAGE_LOW: c.jcma_thresh_low}.get(
+            stage, c.jcma_thresh_tentative)
+        return cost, gate & (cost <= thresh)
+
+    def _motion(self, tracks: Sequence[Track], t: float) -> TrackMotion:
+        ref = self.config.ref_fps
+        n = len(tracks)
+        pred = np.empty((n, 4))
+        last_c = np.empty((n, 2))
+        elapsed = np.empty(n)
+        v_avg = np.empty((n, 2))
+        v_last = np.empty((n, 2))
+        has = np.empty(n, dtype=bool)
+        for i, tr in enumerate(tracks):
+            pred[i] = tr.box_xyxy
+            last_c[i] = tr.last_obs_cxcy
+            elapsed[i] = max((t - tr.last_update_t) * ref, 1e-6)
+            v_avg[i], v_last[i] = self._velocities(tr)
+            has[i] = tr.hits >= 2
+        return TrackMotion(pred, last_c, elapsed, v_avg, v_last, has)
+
+    def _velocities(self, tr: Track) -> tuple[tuple[float, float], tuple[float, float]]:
+        """Mean (over ``state.MOTION_WINDOW`` observations) and last filtered velocity, in px per
+        reference frame."""
+        ref = self.config.ref_fps
+        ax, ay = tr.mean_velocity_px_s()
+        lx, ly = tr.last_velocity_px_s()
+        return (ax / ref, ay / ref), (lx / ref, ly / ref)
+
+    # --- stage 3: PMR -----------------------------------------------------------------------
+    def _recover(
+        self, lost: list[Track], dets: np.ndarray, rest_high: np.ndarray, rest_low: np.ndarray,
+        t: float, rel: list[tuple[float, float]], updated: set[int],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        c = self.config
+        cand = np.concatenate([rest_high, rest_low]) if c.use_pmr and c.pmr_use_low else rest_high
+        if not c.use_pmr or not lost or len(cand) == 0:
+            return rest_high, rest_low
+        centres = (dets[cand, :2] + dets[cand, 2:4]) * 0.5
+        score = np.zeros((len(lost), len(cand)))
+        worth = self._worth_modelling(lost, centres, t)
+        # Gaps shorter than pmr_min_lost_s are JCMA's job (the lost track is in its first-stage
+        # pool every frame); modelling them would fit a mixture for every single missed frame.
+        worth &= np.array([t - tr.last_update_t >= c.pmr_min_lost_s - 1e-9 for tr in lost])
+        for i, tr in enumerate(lost):
+            if not worth[i]:
+                continue
+            if tr.pmr_model is None:
+                tr.pmr_model = fit_pmr(tr.history_array(), tr.last_update_t, c.gamma, c.ref_fps,
+                                      backend=c.pmr_backend)
+                self.pmr_fits += 1
+            model = tr.pmr_model
+            score[i] = p_match(model, centres, t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std) * c_time(
+                model, t, c.gamma)
+        used = set()
+        for r, col in assign(-score, score > c.tau_t):
+            tr, d = lost[r], int(cand[col])
+            tr.update(dets[d, :4], dets[d, 4], t, rel[d])
+            tr.state = TrackState.RECOVERED
+            updated.add(id(tr))
+            used.add(d)
+        keep_high = np.asarray([d for d in rest_high if d not in used], dtype=np.int64)
+        keep_low = np.asarray([d for d in rest_low if d not in used], dtype=np.int64)
+        return keep_high, keep_low
+
+    def _worth_modelling(self, lost: list[Track], centres: np.ndarray, t: float) -> np.ndarray:
+        """Cheap pre-gate, one boolean per lost track: fit/evaluate a mixture only if some candidate
+        lies within a generous radius of the track's Kalman prediction (3 floor sigmas, half the
+        distance travelled since the loss, and two box sizes). P_final > tau_t needs the detection
+        within about one sigma of a component, and components sit near the constant-velocity
+        prediction, so this rejects only hopeless pairs; it keeps EM off frames where nothing is
+        near a lost track."""
+        c = self.config
+        means = np.array([tr.kf.mean[:6] for tr in lost])
+        steps = (t - np.array([tr.last_update_t for tr in lost])) * c.ref_fps
+        size = 0.5 * (means[:, 2] + means[:, 3])
+        speed = np.hypot(means[:, 4], means[:, 5]) / c.ref_fps
+        floor = (c.pmr_pos_std_size * size) ** 2 + (c.pmr_vel_std * steps) ** 2
+        radius = 3.0 * np.sqrt(floor) + 0.5 * speed * steps + 2.0 * size
+        d2 = np.sum((centres[None, :, :] - means[:, None, :2]) ** 2, axis=2)
+        return np.any(d2 <= (radius * radius)[:, None], axis=1)

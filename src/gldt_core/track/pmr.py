@@ -1,0 +1,244 @@
+"""PMR: probability-driven memory recovery of lost tracks (eqs. 16-22).
+
+For each lost track a scikit-learn ``GaussianMixture`` is fitted on its history features
+``Y = [x_abs, y_abs, x_rel, y_rel, vx, vy, theta, w]`` (eq. 16) with
+``K = min(2, max(1, floor(n / 3)))`` components (eq. 18). A detection j is scored against it by
+``P_final = P_match * C_time`` (eqs. 20-22), with ``C_time`` the mean of the time-decay weights
+``w_i = exp(-gamma (t_now - t_i))`` (eqs. 17, 21), and recovers the track when
+``P_final > tau_t``.
+
+The paper leaves three things ill-posed; our choices and why:
+
+1. **P_match is a density, not a probability.** A Gaussian density has units (1/px^2 ...), so a
+   fixed ``tau_t = 0.6`` would mean something different for every feature scaling and box size.
+   We use the *peak-normalised* mixture likelihood ``P_match = sum_k pi_k exp(-d_k^2 / 2)`` with
+   ``d_k`` the Mahalanobis distance to component k: it is unit-free, lies in [0, 1], equals 1 at a
+   component mean, and ``tau_t`` becomes a Mahalanobis gate (``P_final > 0.6`` with ``C_time``
+   near 0.9 accepts a single-component match within about 0.9 sigma).
+2. **Lost targets keep moving.** History positions describe where the target *was*; after a
+   two-second occlusion the detection is elsewhere. Each sample's position feature is therefore
+   its constant-velocity extrapolation to the loss time ``t_L`` (``p_i + v_i (t_L - t_i)``), and at
+   query time every component is propagated exactly by the linear map ``p <- p + v * dt`` (mean
+   and covariance, using the fitted position/velocity cross-covariances). A maneuvering target
+   yields two components with different velocities, i.e. two hypotheses of where it is now. The
+   mixture is fitted once, lazily, the first time a lost track (lost for at least
+   ``JPTrackConfig.pmr_min_lost_s``) has a candidate detection near its prediction, and refitted
+   only after the track has been updated again: never every frame.
+3. **What a detection can be compared on.** A single detection has a position but no velocity or
+   heading of its own, and its time weight is 1 by definition; putting those into the query would
+   make every detection an outlier. ``P_match`` is therefore the marginal of the propagated mixture
+   on the observed position dimensions ``(x_abs, y_abs)``; ``vx, vy`` shape it through the
+   propagation, ``theta`` and the ROI-relative position shape the component split, and ``w``
+   enters through ``C_time`` (eq. 21). ``x_rel, y_rel`` are relative to the ROI the detection came
+   from (``rois`` in ``update``) or, in global mode, to the image.
+
+The covariance of each propagated component gets a floor ``(pos_std_size * box size)^2 +
+(vel_std * dt)^2`` (velocity in px per reference frame): detector jitter and unmodelled
+acceleration, without which a perfectly straight history would give a zero-width gate.
+Units: velocities in px per reference frame (``ref_fps``), time in seconds, ``gamma`` per second.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Columns of the fitted feature vector (eq. 16).
+FEATURES = ("x_abs", "y_abs", "x_rel", "y_rel", "vx", "vy", "theta", "w")
+
+
+@dataclass
+class PmrModel:
+    """A fitted mixture, stored as the few arrays the query needs."""
+
+    t_loss: float
+    weights: np.ndarray  # (K,)
+    mean_pv: np.ndarray  # (K, 4): x, y, vx, vy (velocity per reference frame)
+    cov_pv: np.ndarray  # (K, 4, 4)
+    mean_w_at_loss: float  # mean of exp(-gamma (t_L - t_i)) over the history
+    size: float  # mean box size at loss (px)
+    n_samples: int
+
+
+_CONTROLLER = None
+#: EM settings shared by both backends (scikit-learn's names).
+REG_COVAR = 1e-4
+MAX_ITER = 50
+TOL = 1e-3
+
+
+def _single_thread():
+    """BLAS threads only slow a 30x8 EM down (and badly so on a loaded machine): use one."""
+    global _CONTROLLER
+    if _CONTROLLER is None:
+        from threadpoolctl import ThreadpoolController
+
+        _CONTROLLER = ThreadpoolController()
+    return _CONTROLLER.limit(limits=1)
+
+
+def k_adaptive(n_samples: int) -> int:
+    """Eq. 18: ``min(2, max(1, floor(n / 3)))``."""
+    return min(2, max(1, n_samples // 3))
+
+
+def history_features(history: np.ndarray, t_loss: float, gamma: float, ref_fps: float) -> np.ndarray:
+    """Eq. 16 features ``(n, 8)`` from a track history (rows of ``state.HISTORY_FIELDS``)."""
+    t, cx, cy, xr, yr, vx, vy = (history[:, i] for i in range(7))
+    dt_s = t_loss - t
+    v_ref_x = vx / ref_fps
+    v_ref_y = vy / ref_fps
+    x_abs = cx + vx * dt_s
+    y_abs = cy + vy * dt_s
+    theta = np.arctan2(v_ref_y, v_ref_x)
+    # Unwrap theta around its circular mean so a heading near +-pi is not split in two.
+    mean_dir = np.arctan2(np.sin(theta).mean(), np.cos(theta).mean())
+    theta = mean_dir + (theta - mean_dir + np.pi) % (2 * np.pi) - np.pi
+    w = np.exp(-gamma * dt_s)
+    return np.column_stack([x_abs, y_abs, xr, yr, v_ref_x, v_ref_y, theta, w])
+
+
+def fit_pmr(
+    history: np.ndarray, t_loss: float, gamma: float, ref_fps: float, seed: int = 0,
+    backend: str = "numpy",
+) -> PmrModel:
+    """Fit the mixture of eq. 19 by EM on a lost track's history.
+
+    ``backend="sklearn"`` runs ``sklearn.mixture.GaussianMixture``; ``"numpy"`` (default) runs
+    :func:`em_full_covariance`, the same algorithm (same initialisation from the same seed, same
+    E/M steps, regularisation and stopping rule) without scikit-learn's per-iteration validation,
+    which costs about 1 ms per EM iteration and dominated the tracker's frame time. The test
+    ``tests/test_track_pmr.py`` checks both give the same mixture.
+    """
+    if backend not in ("numpy", "sklearn"):
+        raise ValueError(f"PMR backend must be 'numpy' or 'sklearn', got {backend!r}")
+
+    feats = history_features(history, t_loss, gamma, ref_fps)
+    n = len(feats)
+    k = k_adaptive(n)
+    size = float(np.mean(history[-5:, 7] + history[-5:, 8]) * 0.5)
+    center = feats.mean(0)
+    if k == 1 or n < 2:
+        # One component: EM's fixed point is the sample mean and (biased) covariance, so it is
+        # computed directly (what GaussianMixture(1) returns, without its overhead).
+        diff = feats - center
+        means = center[None, :]
+        covs = (diff.T @ diff / n + np.eye(8) * REG_COVAR)[None, :, :]
+        weights = np.ones(1)
+    else:
+        # Features live on very different scales (px, [0,1], rad); standardise for EM, map back.
+        scale = feats.std(0)
+        scale[scale < 1e-6] = 1.0
+        if backend == "sklearn":
+            from sklearn.mixture import GaussianMixture
+
+            gmm = GaussianMixture(n_components=k, covariance_type="full", reg_covar=REG_COVAR,
+                                  max_iter=MAX_ITER, tol=TOL, random_state=seed,
+                                  init_params="random_from_data")
+            with _single_thread():
+                gmm.fit((feats - center) / scale)
+            w_std, m_std, c_std = gmm.weights_, gmm.means_, gmm.covariances_
+        else:
+            w_std, m_std, c_std = em_full_covariance((feats - center) / scale, k, seed)
+        means = m_std * scale + center
+        covs = c_std * np.outer(scale, scale)[None, :, :]
+        weights = w_std
+    idx = [0, 1, 4, 5]
+    return PmrModel(
+        t_loss=t_loss,
+        weights=np.asarray(weights, dtype=np.float64),
+        mean_pv=np.asarray(means[:, idx], dtype=np.float64),
+        cov_pv=np.asarray(covs[:, idx][:, :, idx], dtype=np.float64),
+        mean_w_at_loss=float(np.mean(feats[:, 7])),
+        size=size,
+        n_samples=n,
+    )
+
+
+def c_time(model: PmrModel, t: float, gamma: float) -> float:
+    """Eq. 21 at time ``t``: mean over the history of ``exp(-gamma (t - t_i))``."""
+    return float(np.exp(-gamma * max(t - model.t_loss, 0.0)) * model.mean_w_at_loss)
+
+
+def p_match(
+    model: PmrModel, centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float, vel_std: float
+) -> np.ndarray:
+    """Eq. 20 (peak-normalised, see the module doc) for detection centres ``(D, 2)`` at ``t``."""
+    steps = max(t - model.t_loss, 0.0) * ref_fps
+    a = np.zeros((2, 4))
+    a[0, 0] = a[1, 1] = 1.0
+    a[0, 2] = a[1, 3] = steps
+    mu = model.mean_pv @ a.T  # (K, 2)
+    cov = np.einsum("ij,kjl,ml->kim", a, model.cov_pv, a)  # (K, 2, 2)
+    floor = (pos_std_size * model.size) ** 2 + (vel_std * steps) ** 2
+    sxx = cov[:, 0, 0] + floor
+    syy = cov[:, 1, 1] + floor
+    sxy = cov[:, 0, 1]
+    det = np.maximum(sxx * syy - sxy * sxy, 1e-12)
+    dx = centers[None, :, 0] - mu[:, 0, None]  # (K, D)
+    dy = centers[None, :, 1] - mu[:, 1, None]
+    d2 = (syy[:, None] * dx * dx - 2.0 * sxy[:, None] * dx * dy + sxx[:, None] * dy * dy) / det[:, None]
+    return model.weights @ np.exp(-0.5 * d2)
+
+
+def em_full_covariance(x: np.ndarray, k: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """EM for a full-covariance Gaussian mixture, step for step scikit-learn's GaussianMixture
+    with ``init_params="random_from_data"``, ``n_init=1`` and the module's REG_COVAR/MAX_ITER/TOL.
+
+    Returns ``(weights (k,), means (k, d), covariances (k, d, d))``.
+    """
+    n, d = x.shape
+    resp = np.zeros((n, k))
+    indices = np.random.RandomState(seed).choice(n, size=k, replace=False)
+    resp[indices, np.arange(k)] = 1.0
+    weights, means, covs = _gaussian_parameters(x, resp)
+    weights = weights / n
+    prec_chol = _precision_cholesky(covs)
+    lower_bound = -np.inf
+    for _ in range(MAX_ITER):
+        previous = lower_bound
+        log_prob_norm, log_resp = _e_step(x, weights, means, prec_chol)
+        weights, means, covs = _gaussian_parameters(x, np.exp(log_resp))
+        weights = weights / weights.sum()
+        prec_chol = _precision_cholesky(covs)
+        lower_bound = log_prob_norm
+        if abs(lower_bound - previous) < TOL:
+            break
+    return weights, means, covs
+
+
+def _gaussian_parameters(x: np.ndarray, resp: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    nk = resp.sum(axis=0) + 10 * np.finfo(resp.dtype).eps
+    means = resp.T @ x / nk[:, None]
+    k, d = means.shape
+    covs = np.empty((k, d, d))
+    for j in range(k):
+        diff = x - means[j]
+        covs[j] = (resp[:, j] * diff.T) @ diff / nk[j]
+        covs[j].flat[:: d + 1] += REG_COVAR
+    return nk, means, covs
+
+
+def _precision_cholesky(covs: np.ndarray) -> np.ndarray:
+    d = covs.shape[1]
+    out = np.empty_like(covs)
+    eye = np.eye(d)
+    for j, cov in enumerate(covs):
+        chol = np.linalg.cholesky(cov)
+        out[j] = np.linalg.solve(chol, eye).T
+    return out
+
+
+def _e_step(x: np.ndarray, weights: np.ndarray, means: np.ndarray, prec_chol: np.ndarray) -> tuple[float, np.ndarray]:
+    n, d = x.shape
+    k = len(weights)
+    log_prob = np.empty((n, k))
+    for j in range(k):
+        y = x @ prec_chol[j] - means[j] @ prec_chol[j]
+        log_det = np.sum(np.log(np.diag(prec_chol[j])))
+        log_prob[:, j] = -0.5 * (d * np.log(2 * np.pi) + np.sum(y * y, axis=1)) + log_det
+    weighted = log_prob + np.log(weights)
+    top = weighted.max(axis=1, keepdims=True)
+    log_norm = (top + np.log(np.exp(weighted - top).sum(axis=1, keepdims=True)))[:, 0]
+    return float(np.mean(log_norm)), weighted - log_norm[:, None]

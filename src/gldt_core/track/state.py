@@ -1,0 +1,178 @@
+"""Track objects shared by ByteTrack and JPTrack: a Kalman filter plus the memory PMR needs."""
+
+from __future__ import annotations
+
+import enum
+from collections import deque
+
+import numpy as np
+
+from gldt_core.track.geometry import cxcywh_to_xyxy, xyxy_to_cxcywh
+from gldt_core.track.kalman import ConstantVelocityKalman, predict_many, update_many
+
+
+class TrackState(enum.Enum):
+    """Life cycle: TENTATIVE until a second hit, CONFIRMED while matched, LOST while coasting,
+    RECOVERED on the frame PMR brings a lost track back (CONFIRMED again at its next match)."""
+
+    TENTATIVE = "tentative"
+    CONFIRMED = "confirmed"
+    LOST = "lost"
+    RECOVERED = "recovered"
+
+
+#: Observations averaged into JCMA's historical velocity ``v_avg``.
+MOTION_WINDOW = 10
+
+#: One history sample: t, cx, cy, x_rel, y_rel, vx, vy (px/s from the filter), w, h.
+HISTORY_FIELDS = ("t", "cx", "cy", "x_rel", "y_rel", "vx", "vy", "w", "h")
+
+
+class Track:
+    """A tracked object. Box, velocity and covariance come from the Kalman filter at the time of
+    the last ``update`` call of the owning tracker (``now_t``)."""
+
+    def __init__(
+        self,
+        track_id: int,
+        box_xyxy: np.ndarray,
+        score: float,
+        t: float,
+        state: TrackState,
+        ref_fps: float,
+        history_len: int,
+        rel_xy: tuple[float, float],
+    ) -> None:
+        self.track_id = int(track_id)
+        self.state = state
+        self.kf = ConstantVelocityKalman(xyxy_to_cxcywh(np.asarray(box_xyxy, dtype=np.float64)), ref_fps)
+        self.kf_t = float(t)
+        self.score = float(score)
+        self.hits = 1
+        self.frames_since_update = 0
+        self.start_t = float(t)
+        self.last_update_t = float(t)
+        self.now_t = float(t)
+        self.lost_since_t: float | None = None
+        #: Observed centres (cx, cy) and KF velocities at each update, newest last.
+        self.history: deque[tuple[float, ...]] = deque(maxlen=history_len)
+        self.last_obs_cxcy = self.kf.mean[:2].copy()
+        self._recent_v: deque[tuple[float, float]] = deque()
+        self._v_sum = [0.0, 0.0]
+        self._record(t, rel_xy)
+        #: Cached PMR mixture, fitted lazily once the track is lost (see pmr.py).
+        self.pmr_model: object | None = None
+
+    # --- public read-only view -------------------------------------------------------------
+    @property
+    def box_xyxy(self) -> np.ndarray:
+        """Filtered box ``[x1, y1, x2, y2]`` at ``now_t`` (a prediction while lost)."""
+        cx, cy, w, h = self.kf.mean[:4].tolist()
+        return np.array([cx - 0.5 * w, cy - 0.5 * h, cx + 0.5 * w, cy + 0.5 * h])
+
+    @property
+    def velocity_px_s(self) -> np.ndarray:
+        """Velocity ``(vx, vy)`` of the box centre in px/s."""
+        return self.kf.mean[4:6].copy()
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """8x8 covariance of the Kalman state ``[cx, cy, w, h, vcx, vcy, vw, vh]``."""
+        return self.kf.covariance.copy()
+
+    @property
+    def age_s(self) -> float:
+        """Seconds since the track was born."""
+        return self.now_t - self.start_t
+
+    @property
+    def is_active(self) -> bool:
+        return self.state in (TrackState.CONFIRMED, TrackState.RECOVERED)
+
+    # --- used by the trackers -------------------------------------------------------------
+    def advance(self, t: float) -> None:
+        """Predict the filter forward to ``t`` (called once per tracker update)."""
+        self.kf.predict(t - self.kf_t)
+        self.kf_t = t
+        self.now_t = t
+
+    def predicted_xyxy(self, t: float) -> np.ndarray:
+        """Box predicted at ``t`` without changing the filter."""
+        mean, _ = self.kf.predicted(t - self.kf_t)
+        return cxcywh_to_xyxy(mean[:4])
+
+    def update(self, box_xyxy: np.ndarray, score: float, t: float, rel_xy: tuple[float, float]) -> None:
+        """Fuse a matched detection at ``t`` (the filter must already be at ``t``)."""
+        x1, y1, x2, y2 = (float(v) for v in box_xyxy[:4])
+        self.kf.update(np.array([(x1 + x2) * 0.5, (y1 + y2) * 0.5, x2 - x1, y2 - y1]))
+        self.after_update(box_xyxy, score, t, rel_xy)
+
+    def after_update(self, box_xyxy: np.ndarray, score: float, t: float, rel_xy: tuple[float, float]) -> None:
+        """Bookkeeping of an update whose filter step was already done (see update_tracks)."""
+        x1, y1, x2, y2 = (float(v) for v in box_xyxy[:4])
+        self.last_obs_cxcy = np.array([(x1 + x2) * 0.5, (y1 + y2) * 0.5])
+        self.score = float(score)
+        self.hits += 1
+        self.frames_since_update = 0
+        self.last_update_t = t
+        self.lost_since_t = None
+        self.pmr_model = None
+        self._record(t, rel_xy)
+
+    def mark_missed(self) -> None:
+        self.frames_since_update += 1
+
+    def mark_lost(self) -> None:
+        if self.state is not TrackState.LOST:
+            self.state = TrackState.LOST
+            self.lost_since_t = self.last_update_t
+
+    def _record(self, t: float, rel_xy: tuple[float, float]) -> None:
+        cx, cy, w, h, vx, vy = self.kf.mean[:6].tolist()
+        self.history.append((t, float(self.last_obs_cxcy[0]), float(self.last_obs_cxcy[1]), rel_xy[0],
+                             rel_xy[1], vx, vy, w, h))
+        # Running mean of the last MOTION_WINDOW filtered velocities (JCMA's v_avg), O(1) per update.
+        self._recent_v.append((vx, vy))
+        self._v_sum[0] += vx
+        self._v_sum[1] += vy
+        if len(self._recent_v) > MOTION_WINDOW:
+            old_x, old_y = self._recent_v.popleft()
+            self._v_sum[0] -= old_x
+            self._v_sum[1] -= old_y
+
+    def mean_velocity_px_s(self) -> tuple[float, float]:
+        """Mean filtered velocity over the last MOTION_WINDOW observations (px/s)."""
+        n = len(self._recent_v)
+        return self._v_sum[0] / n, self._v_sum[1] / n
+
+    def last_velocity_px_s(self) -> tuple[float, float]:
+        """Filtered velocity right after the last observation (px/s)."""
+        return self._recent_v[-1]
+
+    def history_array(self) -> np.ndarray:
+        """History as an ``(n, 9)`` array in :data:`HISTORY_FIELDS` order."""
+        return np.asarray(self.history, dtype=np.float64)
+
+
+def advance_tracks(tracks: list[Track], t: float) -> None:
+    """``advance(t)`` for every track, vectorised over their filters."""
+    if not tracks:
+        return
+    predict_many([tr.kf for tr in tracks], np.array([t - tr.kf_t for tr in tracks]))
+    for tr in tracks:
+        tr.kf_t = t
+        tr.now_t = t
+
+
+def update_tracks(
+    tracks: list[Track], boxes_xyxy: np.ndarray, scores: np.ndarray, t: float, rels: list[tuple[float, float]]
+) -> None:
+    """``update`` for several (track, detection) pairs with one batched Kalman step."""
+    if not tracks:
+        return
+    b = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    measured = np.column_stack([(b[:, 0] + b[:, 2]) * 0.5, (b[:, 1] + b[:, 3]) * 0.5,
+                                b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]])
+    update_many([tr.kf for tr in tracks], measured)
+    for tr, box, score, rel in zip(tracks, b, scores, rels):
+        tr.after_update(box, float(score), t, rel)
