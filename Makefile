@@ -5,7 +5,7 @@ SHELL := /bin/bash
 VENV_PY := .venv/bin/python
 PYTEST_ARGS ?=
 
-.PHONY: help setup demo test test-slow test-all docs clean
+.PHONY: help setup demo test test-slow test-all docs bench-peers clean
 
 help:
 	@echo "make demo       set up, then replay the bundled sample through GL-DT and print what it saw"
@@ -26,6 +26,11 @@ test-slow: setup
 
 test-all: setup
 	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest $(PYTEST_ARGS)
+
+# boxmot is only a benchmark peer; it declares torch/torchvision deps we must not resolve (they
+# would pull a CUDA torch), so it is installed without them plus the two it really imports.
+bench-peers: setup
+	@.venv/bin/python -m pip install -q --no-deps boxmot==25.0.0 && .venv/bin/python -m pip install -q lapx==0.11.1 rich
 
 docs: setup
 	@$(VENV_PY) scripts/generate_param_docs.py

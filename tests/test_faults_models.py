@@ -127,9 +127,6 @@ def test_truncated_model_fails_at_construction_naming_the_file(tmp_path: Path, c
     assert str(path) in text
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "detect/runtime.py open_session (not-found message line 58, load failure line 75) names the file but "
-    "not the expected input shape; issue 9 asks for both in the one line"))
 @pytest.mark.parametrize("cls, build, shape", [
     (GlobalDetector, global_model, "(1, 3, H, W)"), (LocalDetector, local_model, "(N, 3, S, S)")],
     ids=["global", "local"])
@@ -272,10 +269,6 @@ def test_degenerate_boxes_from_a_real_model_never_stop_the_pipeline(tmp_path: Pa
     assert np.all(np.isfinite(fed)) and np.all(fed[:, 2] > fed[:, 0]) and np.all(fed[:, 3] > fed[:, 1])
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "detect/postprocess.py nms (line ~77) and decode_output: a NaN box that outranks a valid one gives IoU NaN, "
-    "and `iou <= iou_threshold` is False for NaN, so the valid detection is suppressed; non-finite boxes "
-    "should be dropped before NMS"))
 def test_a_nan_box_never_suppresses_a_valid_detection(tmp_path: Path) -> None:
     good = [0.30, 0.30, 0.34, 0.34, 0.90, 0.0]
     nan_box = [float("nan"), 0.30, 0.40, 0.40, 0.95, 0.0]

@@ -16,6 +16,12 @@ import numpy as np
 from .postprocess import Letterbox, decode_output, ensure_bgr, letterbox, to_blob, unletterbox
 
 
+def _drop_degenerate(detections: np.ndarray) -> np.ndarray:
+    from .runtime import _drop_degenerate as drop
+
+    return drop(detections)
+
+
 def prepare_global_input(detector: Any, frame_bgr: np.ndarray) -> tuple[np.ndarray, Letterbox]:
     """Letterbox one full frame to the global detector's network input; returns image and mapping."""
     frame = ensure_bgr(frame_bgr, "frame")
@@ -42,8 +48,11 @@ def detect_global_prepared(
     else:
         feed = {detector.input_names[0]: to_blob([current_input])}
     (output,) = detector.session.run(None, feed)
-    detections = decode_output(output[0], detector.score_threshold, detector.iou_threshold, detector.max_detections)
-    detections = unletterbox(detections, mapping, frame_width, frame_height)
+    input_h, input_w = current_input.shape[:2]
+    detections = decode_output(
+        output[0], detector.score_threshold, detector.iou_threshold, detector.max_detections, box_scale=(input_w, input_h)
+    )
+    detections = _drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
     if len(detections):
         detections[:, 5] = detector.class_ids[detections[:, 5].astype(np.int64)]
     return detections.astype(np.float32)
@@ -73,7 +82,10 @@ def detect_local_crops(
     (output,) = detector.session.run(None, {detector.input_name: to_blob(inputs)})
     results = []
     for index, (out, mapping, roi) in enumerate(zip(output, mappings, rois)):
-        detections = decode_output(out, detector.score_threshold, detector.iou_threshold, detector.max_detections_per_roi)
+        side = detector.input_side
+        detections = decode_output(
+            out, detector.score_threshold, detector.iou_threshold, detector.max_detections_per_roi, box_scale=(side, side)
+        )
         if not len(detections):
             continue
         detections = unletterbox(detections, mapping, int(roi[2] - roi[0]), int(roi[3] - roi[1]))
@@ -81,6 +93,7 @@ def detect_local_crops(
         detections[:, [1, 3]] += roi[1]
         detections[:, [0, 2]] = detections[:, [0, 2]].clip(0, frame_width)
         detections[:, [1, 3]] = detections[:, [1, 3]].clip(0, frame_height)
+        detections = _drop_degenerate(detections)  # boxes in the padding of ROIs that stick out of the frame
         detections[:, 5] = detector.class_ids[detections[:, 5].astype(np.int64)]
         results.append(np.concatenate((detections, np.full((len(detections), 1), index, dtype=np.float32)), 1))
     if not results:

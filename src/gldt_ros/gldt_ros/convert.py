@@ -80,6 +80,22 @@ def msgs_to_rois(rois: Iterable[Roi]) -> np.ndarray:
     return np.asarray(rows, dtype=np.int64).reshape(-1, 4)
 
 
+_STATE_CODES = {
+    "TENTATIVE": Track.STATE_TENTATIVE,
+    "CONFIRMED": Track.STATE_CONFIRMED,
+    "LOST": Track.STATE_LOST,
+    "RECOVERED": Track.STATE_RECOVERED,
+}
+
+
+def state_code(state: Any) -> int:
+    """``Track.STATE_*`` for a core ``TrackState`` (by name, so enum values may be anything)."""
+    name = str(getattr(state, "name", state)).upper()
+    if name not in _STATE_CODES:
+        raise ValueError(f"unknown track state {state!r}")
+    return _STATE_CODES[name]
+
+
 def track_to_msg(track: Any) -> Track:
     """A core ``Track`` object -> ``gldt_msgs/Track`` (bearing fields are filled by the caller)."""
     x1, y1, x2, y2 = (float(v) for v in track.box_xyxy)
@@ -90,7 +106,7 @@ def track_to_msg(track: Any) -> Track:
         covariance = cov.reshape(64)
     return Track(
         id=int(track.track_id),
-        state=int(getattr(track.state, "value", track.state)),
+        state=state_code(track.state),
         center_x=(x1 + x2) / 2,
         center_y=(y1 + y2) / 2,
         width=x2 - x1,

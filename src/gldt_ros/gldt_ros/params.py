@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from gldt_core.pipeline.config import DetectorSettings
 from gldt_core.pipeline.roi import DEFAULT_ROI_SIZE
 from gldt_core.pipeline.scheduler import DEFAULT_N_GLOBAL, DEFAULT_N_LOCAL, DEFAULT_N_MISS
 
@@ -38,6 +39,8 @@ class ParamSpec:
 _CAMERA_QOS = ParamSpec(
     "camera_qos", "sensor_data", "QoS of camera input: match the publisher", choices=("sensor_data", "reliable")
 )
+_DETECTOR_DEFAULTS = DetectorSettings()
+_CLASSES_DEFAULT = ",".join(str(c) for c in _DETECTOR_DEFAULTS.classes) if _DETECTOR_DEFAULTS.classes else ""
 _DIAG_PERIOD = ParamSpec("diagnostics_period", 1.0, "Seconds between /diagnostics messages", 0.1, 60.0)
 
 SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
@@ -50,7 +53,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "global_detector": (
         ParamSpec("model_path", "", "AM-YOLO ONNX file; empty = the model shipped with gldt_core"),
         ParamSpec("score_threshold", -1.0, "Lowest detection score kept; -1 = the detector's default", -1.0, 1.0),
-        ParamSpec("classes", "", "Comma-separated class ids passed to the tracker (1 drone, 2 bird, 3 airplane); empty = all"),
+        ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids passed to the tracker (1 drone, 2 bird, 3 airplane); empty = all"),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers (CUDA, TensorRT on Jetson)"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
         _DIAG_PERIOD,
@@ -58,8 +61,8 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "local_detector": (
         ParamSpec("model_path", "", "Local P2 ONNX file; empty = the model shipped with gldt_core"),
         ParamSpec("score_threshold", -1.0, "Lowest detection score kept; -1 = the detector's default", -1.0, 1.0),
-        ParamSpec("classes", "", "Comma-separated class ids passed to the tracker; empty = all"),
-        ParamSpec("nms_iou", 0.5, "IoU above which detections of overlapping ROIs are merged", 0.01, 1.0),
+        ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids passed to the tracker; empty = all"),
+        ParamSpec("nms_iou", _DETECTOR_DEFAULTS.nms_iou, "IoU above which detections of overlapping ROIs are merged", 0.01, 1.0),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
         _DIAG_PERIOD,
@@ -69,6 +72,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ParamSpec("local_frames", DEFAULT_N_LOCAL, "N_l: most frames in local mode before a global refresh", 1, 10000),
         ParamSpec("miss_frames", DEFAULT_N_MISS, "N_m: local frames without any detection before returning to global", 1, 10000),
         ParamSpec("roi_size", DEFAULT_ROI_SIZE, "Side of a local-detection ROI [px]", 32, 2048),
+        ParamSpec("report_timeout", 5.0, "Lockstep: seconds to wait for a LOCAL frame's detections before planning on", 0.1, 600.0),
         ParamSpec("lockstep", False, "Plan a frame only after the previous LOCAL frame's detections arrived (deterministic replay)"),
         _DIAG_PERIOD,
     ),

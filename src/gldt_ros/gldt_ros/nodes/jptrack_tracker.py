@@ -37,6 +37,7 @@ class TrackerNode(GldtNode):
             tracker=TrackerSettings(name=self.param("tracker")), track_lost_frames=int(self.param("lost_frames_kept"))
         )
         self.tracker = build_tracker(self.config)
+        self._frame_size: tuple[int, int] | None = None
         self.intrinsics = None
         self._last_stamp: float | None = None
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
@@ -55,6 +56,14 @@ class TrackerNode(GldtNode):
 
     def on_tick(self, tick: FrameTick) -> None:
         t = _stamp_seconds(tick.header.stamp)
+        size = (int(tick.width), int(tick.height))
+        if size != self._frame_size:
+            # Distance costs are normalised by the image size, as GLDTPipeline does per stream.
+            if self._frame_size is not None:
+                self.get_logger().warning(f"frame size changed to {size[0]}x{size[1]}; tracker re-initialised")
+            self.tracker = build_tracker(self.config, size)
+            self._frame_size = size
+            self._last_stamp = None
         if self._last_stamp is not None and t <= self._last_stamp:
             self.get_logger().warning(
                 f"frame {tick.frame_index}: time went backwards ({self._last_stamp:.3f} s -> {t:.3f} s); tracker reset"

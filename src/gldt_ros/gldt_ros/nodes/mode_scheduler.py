@@ -46,6 +46,8 @@ class ModeSchedulerNode(GldtNode):
         self._last_stamp: float | None = None
         self._plans: dict[int, Any] = {}
         self._awaiting_report: int | None = None
+        self._awaiting_since = 0.0
+        self.create_timer(0.05, self._check_report_timeout)
         self._queue: deque[TrackPredictions] = deque()
         self.create_subscription(TrackPredictions, "gldt/track_predictions", self.guarded(self.on_predictions, "predictions"), qos.RELIABLE)
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
@@ -56,6 +58,15 @@ class ModeSchedulerNode(GldtNode):
     def on_predictions(self, message: TrackPredictions) -> None:
         self._queue.append(message)
         self._drain()
+
+    def _check_report_timeout(self) -> None:
+        """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph."""
+        import time
+
+        if self._awaiting_report is not None and time.monotonic() - self._awaiting_since > float(self.param("report_timeout")):
+            self.warn_once("report-timeout", f"no detections for LOCAL frame {self._awaiting_report}; planning on without them")
+            self._awaiting_report = None
+            self._drain()
 
     def _drain(self) -> None:
         while self._queue and not (self.lockstep and self._awaiting_report is not None):
@@ -80,7 +91,10 @@ class ModeSchedulerNode(GldtNode):
             del self._plans[old]
         local = plan.mode.name == "LOCAL"
         if local:
+            import time
+
             self._awaiting_report = index
+            self._awaiting_since = time.monotonic()
         state = self.scheduler.state
         roi_msgs = rois_to_msgs(plan.rois, plan.layout.groups)
         decision = SchedulerState(

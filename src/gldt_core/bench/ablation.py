@@ -1,0 +1,266 @@
+"""``gldt bench ablation``: the paper's Table IV, plus where the time goes, in one run.
+
+Four rows per dataset - GD+ByteTrack, GD+LD+ByteTrack, GD+JPTrack, GD+LD+JPTrack - with IDSW,
+IDF1, MOTA, MOTP, HOTA (TrackEval definitions, percent) and FPS, on
+
+* synthetic 1080p test scenes (``gldt_core.sim.presets``, test split), and
+* the Halmstad validation clips (``detect.halmstad_split``), skipped with a reason if absent.
+
+All four rows share the same detector instances and the same decoded frames, so their FPS are
+comparable; GD+JPTrack *is* "the global detector on every frame", so the speed ratio
+GD+LD+JPTrack / GD+JPTrack is the GL-DT schedule's gain, measured in the same run. Frames are
+kept JPEG-encoded in memory and decoded per use (``decode`` stage), like a video would be.
+"""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+#: (label, local detection on, tracker) in the paper's order.
+VARIANTS = (
+    ("GD+ByteTrack", False, "bytetrack"),
+    ("GD+LD+ByteTrack", True, "bytetrack"),
+    ("GD+JPTrack", False, "jptrack"),
+    ("GD+LD+JPTrack", True, "jptrack"),
+)
+METRICS = ("IDSW", "IDF1", "MOTA", "MOTP", "HOTA")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add ``gldt bench ablation``."""
+    parser = subparsers.add_parser(
+        "ablation",
+        help="Table IV: GD vs GD+LD, ByteTrack vs JPTrack, with FPS and a speed breakdown",
+        description="Run the four detector/tracker combinations of the paper's Table IV on synthetic "
+        "1080p test scenes and Halmstad validation clips; print metrics, FPS, the GL-DT vs "
+        "GD-every-frame speed ratio and the per-stage time breakdown.",
+    )
+    parser.add_argument("--scenes", type=int, default=3, help="synthetic test scenes (default 3; 0 = none)")
+    parser.add_argument("--frames", type=int, default=300, help="frames per synthetic scene (default 300)")
+    parser.add_argument("--clips", type=int, default=4, help="Halmstad validation drone clips (default 4; 0 = none)")
+    parser.add_argument("--clip-frames", type=int, default=None, help="frames per clip (default: all)")
+    parser.add_argument(
+        "--halmstad",
+        default="/work/shared/data/halmstad-visible",
+        help="Halmstad dataset root (skipped with a message when absent)",
+    )
+    parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration (defaults: Table I)")
+    parser.add_argument("--json", metavar="OUT.json", help="also write all numbers as JSON")
+    parser.set_defaults(func=handle_ablation)
+
+
+# --------------------------------------------------------------------------------- sequences
+class CachedSequence:
+    """Frames of one sequence held JPEG-encoded (quality 95) plus its MOTChallenge ground truth."""
+
+    def __init__(self, name: str, fps: float, encoded: list[Any], stamps: list[float], gt: Any) -> None:
+        self.name = name
+        self.fps = fps
+        self.encoded = encoded
+        self.stamps = stamps
+        self.gt = gt
+
+    def __len__(self) -> int:
+        return len(self.encoded)
+
+    def __iter__(self):
+        import cv2
+
+        from gldt_core.pipeline.runner import SimpleFrame
+
+        for index, (buffer, stamp) in enumerate(zip(self.encoded, self.stamps)):
+            yield SimpleFrame(index=index, stamp=stamp, image=cv2.imdecode(buffer, cv2.IMREAD_COLOR))
+
+
+def _encode(image: Any) -> Any:
+    import cv2
+
+    ok, buffer = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    if not ok:
+        raise ValueError("could not JPEG-encode a frame for the benchmark cache")
+    return buffer
+
+
+def cache_source(source: Any, name: str, max_frames: int | None = None) -> CachedSequence:
+    """Decode a :class:`gldt_core.data.FrameSource` once into a JPEG cache with its ground truth."""
+    import numpy as np
+
+    encoded, stamps, gt_rows = [], [], []
+    for frame in source:
+        if max_frames is not None and len(encoded) >= max_frames:
+            break
+        encoded.append(_encode(frame.image))
+        stamps.append(float(frame.stamp))
+        truth = getattr(frame, "ground_truth", None)
+        if truth is not None and len(truth):
+            gt_rows.append(np.asarray(truth, dtype=np.float64).reshape(-1, 10))
+    gt = np.vstack(gt_rows) if gt_rows else np.zeros((0, 10))
+    return CachedSequence(name, float(getattr(source, "fps", 30.0) or 30.0), encoded, stamps, gt)
+
+
+def synthetic_sequences(scenes: int, frames: int) -> list[CachedSequence]:
+    """The first ``scenes`` 1080p scenes of the synthetic *test* split (never trained on)."""
+    from gldt_core.data.synth import SynthSource
+    from gldt_core.sim import presets
+
+    return [
+        cache_source(SynthSource(spec), spec.name or f"synthetic-{spec.seed}")
+        for spec in presets.split("test", count=scenes, frames=frames)
+    ]
+
+
+def halmstad_sequences(root: str, clips: int, clip_frames: int | None) -> list[CachedSequence]:
+    """The first ``clips`` validation ``V_DRONE`` clips (never trained on by the shipped models)."""
+    from pathlib import Path
+
+    from gldt_core.data import open_source
+    from gldt_core.detect.halmstad_split import halmstad_split
+
+    root_path = Path(root)
+    names = [n for n in halmstad_split(root_path)["val"] if n.startswith("V_DRONE")][:clips]
+    out = []
+    for name in names:
+        source = open_source(root_path / "videos" / f"{name}.mp4", gt=root_path / "gt" / f"{name}.txt")
+        out.append(cache_source(source, name, clip_frames))
+    return out
+
+
+# --------------------------------------------------------------------------------- running
+def run_dataset(
+    sequences: list[CachedSequence], config: Any, detectors: tuple[Any, Any], progress: bool = False
+) -> list[dict[str, Any]]:
+    """All four variants over ``sequences``; one dict per variant (metrics in %, FPS, breakdown)."""
+    import sys
+
+    from gldt_core.eval.mot_metrics import evaluate_many
+    from gldt_core.pipeline.pipeline import GLDTPipeline, build_tracker
+    from gldt_core.pipeline.runner import run_frames
+    from gldt_core.pipeline.timing import StageTimer
+
+    global_detector, local_detector = detectors
+    rows = []
+    for label, local_enabled, tracker_name in VARIANTS:
+        variant_config = config.with_changes(local_enabled=local_enabled, tracker=tracker_name)
+        timer = StageTimer()
+        frames = seconds = gd_frames = 0
+        coverage = [0, 0]  # drones inside an ROI, drones on LD frames
+        pairs = {}
+        for sequence in sequences:
+            pipeline = GLDTPipeline(
+                variant_config,
+                global_detector=global_detector,
+                local_detector=local_detector if local_enabled else None,
+                tracker=build_tracker(variant_config),
+                timer=timer,
+            )
+            drones_by_frame = _drone_centres_by_frame(sequence.gt)
+
+            def count_coverage(frame: Any, _tracks: Any, pipeline: Any = pipeline, drones: Any = drones_by_frame) -> None:
+                plan = pipeline.last_plan
+                centres = drones.get(int(frame.index) + 1)
+                if plan is None or plan.mode.value != "LD" or centres is None:
+                    return
+                coverage[0] += int(_inside_any(centres, plan.rois).sum())
+                coverage[1] += len(centres)
+
+            result = run_frames(pipeline, sequence, on_frame=count_coverage if local_enabled else None)
+            frames += result.frames
+            seconds += result.seconds
+            gd_frames += result.global_frames
+            pairs[sequence.name] = (sequence.gt, result.rows)
+        metrics = evaluate_many(pairs)["combined"]
+        row: dict[str, Any] = {"variant": label, "frames": frames, "fps": frames / seconds if seconds else 0.0}
+        row["gd_share"] = gd_frames / frames if frames else 0.0
+        row["roi_coverage"] = coverage[0] / coverage[1] if coverage[1] else None
+        for key in METRICS:
+            row[key] = int(metrics[key]) if key == "IDSW" else 100.0 * float(metrics[key])
+        row["stage_ms"] = {name: ms for name, ms, _, _ in timer.breakdown(frames)}
+        rows.append(row)
+        if progress:
+            print(f"ablation: {label} done ({frames} frames, {row['fps']:.1f} FPS)", file=sys.stderr, flush=True)
+    return rows
+
+
+def _drone_centres_by_frame(gt: Any) -> dict[int, Any]:
+    """``{frame: (K, 2) centres}`` of the drone (class 1 or unlabelled) ground-truth boxes."""
+    import numpy as np
+
+    gt = np.asarray(gt, dtype=np.float64).reshape(-1, 10)
+    gt = gt[(gt[:, 7] == 1) | (gt[:, 7] == -1)]
+    centres = np.stack([gt[:, 2] + gt[:, 4] / 2, gt[:, 3] + gt[:, 5] / 2], axis=1)
+    return {int(f): centres[gt[:, 0] == f] for f in np.unique(gt[:, 0])}
+
+
+def _inside_any(centres: Any, rois: Any) -> Any:
+    """Boolean per centre: inside at least one ROI."""
+    import numpy as np
+
+    rois = np.asarray(rois, dtype=np.float64).reshape(-1, 4)
+    if not len(rois):
+        return np.zeros(len(centres), dtype=bool)
+    x, y = centres[:, :1], centres[:, 1:2]
+    return ((x >= rois[:, 0]) & (x < rois[:, 2]) & (y >= rois[:, 1]) & (y < rois[:, 3])).any(axis=1)
+
+
+def format_table(title: str, rows: list[dict[str, Any]]) -> str:
+    """Table IV layout plus FPS and GD share."""
+    header = f"{'model':<17}{'IDSW':>6}{'IDF1':>8}{'MOTA':>8}{'MOTP':>8}{'HOTA':>8}{'FPS':>8}{'GD%':>6}{'ROIcov':>8}"
+    lines = [title, header]
+    for r in rows:
+        cover = "-" if r.get("roi_coverage") is None else f"{100 * r['roi_coverage']:.0f}%"
+        lines.append(
+            f"{r['variant']:<17}{r['IDSW']:>6d}{r['IDF1']:>8.2f}{r['MOTA']:>8.2f}{r['MOTP']:>8.2f}"
+            f"{r['HOTA']:>8.2f}{r['fps']:>8.1f}{100 * r['gd_share']:>5.0f}%{cover:>8}"
+        )
+    lines.append("(ROIcov: share of ground-truth drones on LD frames whose centre lies inside an ROI)")
+    by_name = {r["variant"]: r for r in rows}
+    ours, gd_only = by_name["GD+LD+JPTrack"], by_name["GD+JPTrack"]
+    ratio = ours["fps"] / gd_only["fps"] if gd_only["fps"] else float("nan")
+    lines.append(
+        f"GD+LD+JPTrack vs GD+JPTrack: MOTA {ours['MOTA'] - gd_only['MOTA']:+.2f}, "
+        f"speed x{ratio:.2f} (GL-DT schedule vs global detector on every frame, same run)"
+    )
+    stages = ", ".join(f"{k} {v:.1f}" for k, v in ours["stage_ms"].items())
+    lines.append(f"GD+LD+JPTrack time per frame (ms): {stages}")
+    stages = ", ".join(f"{k} {v:.1f}" for k, v in gd_only["stage_ms"].items())
+    lines.append(f"GD+JPTrack    time per frame (ms): {stages}")
+    return "\n".join(lines)
+
+
+def handle_ablation(args: argparse.Namespace) -> int:
+    """Run the ablation; prints one table per dataset."""
+    import json
+    import os
+    from pathlib import Path
+
+    from gldt_core.pipeline.config import load_config
+    from gldt_core.pipeline.pipeline import build_detectors
+
+    for name in ("scenes", "frames", "clips"):
+        if getattr(args, name) < 0:
+            raise ValueError(f"--{name} must be >= 0, got {getattr(args, name)}")
+    config = load_config(args.config)
+    detectors = build_detectors(config.with_changes(local_enabled=True))
+    report: dict[str, Any] = {}
+
+    if args.scenes:
+        sequences = synthetic_sequences(args.scenes, args.frames)
+        rows = run_dataset(sequences, config, detectors, progress=True)
+        report["synthetic_1080p"] = rows
+        print(format_table(f"synthetic 1080p test scenes: {len(sequences)} x {args.frames} frames", rows))
+    if args.clips:
+        if not Path(args.halmstad, "videos").is_dir():
+            print(f"halmstad: skipped, {args.halmstad}/videos not found")
+        else:
+            sequences = halmstad_sequences(args.halmstad, args.clips, args.clip_frames)
+            rows = run_dataset(sequences, config, detectors, progress=True)
+            report["halmstad_val"] = rows
+            total = sum(len(s) for s in sequences)
+            print(format_table(f"Halmstad validation drone clips (640x512): {len(sequences)} clips, {total} frames", rows))
+    if args.json:
+        path = Path(args.json)
+        temporary = path.with_name(path.name + ".part")
+        temporary.write_text(json.dumps(report, indent=2))
+        os.replace(temporary, path)
+    return 0

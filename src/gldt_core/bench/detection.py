@@ -1,0 +1,266 @@
+"""``gldt bench detection``: accuracy and latency of AM-YOLO, the same network without STFF, and the local model.
+
+Accuracy (drone class, IoU-matched as in COCO; see :mod:`gldt_core.detect.metrics`):
+
+* real: every ``--frame-step``-th frame of the held-out Halmstad drone clips
+  (:mod:`gldt_core.detect.halmstad_split`), plus false drone detections per frame on the
+  held-out bird/airplane clips at the operating threshold;
+* synthetic: frames of the ``gldt_core.sim.presets`` "test" scenes (1080p), never trained on.
+
+The global models see each frame with its predecessor; the local model covers the frame with
+300 px ROI tiles (one batch per frame) since no tracker is there to place ROIs. Latency is the
+median wall time of one detector call (pre-processing, inference, decoding, NMS) on a 1920x1080
+frame (global) and on a batch of 4 ROIs of 300x300 (local), measured in the same run, with the
+ratios between them printed so machine noise cancels. PR and recall-confidence curves are saved as
+PNG (like the paper's Fig. 7).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser("detection", help="AP50 / AP50:95 / AP_small / PR AUC / latency of the detectors")
+    parser.add_argument("--real-root", default="/work/shared/data/halmstad-visible", help="Halmstad clips (skipped when absent)")
+    parser.add_argument("--frame-step", type=int, default=10, help="evaluate every N-th frame of each real clip")
+    parser.add_argument("--max-clips", type=int, default=None, help="limit the held-out clips per category (quick runs)")
+    parser.add_argument("--synthetic-scenes", type=int, default=6, help="synthetic test scenes (0 to skip)")
+    parser.add_argument("--synthetic-frames", type=int, default=60, help="frames evaluated per synthetic scene")
+    parser.add_argument("--score-threshold", type=float, default=0.25, help="operating threshold for false-positive rates")
+    parser.add_argument("--global-model", default=None, help="AM-YOLO ONNX (default: shipped)")
+    parser.add_argument("--nostff-model", default=None, help="no-STFF ablation ONNX (default: shipped)")
+    parser.add_argument("--local-model", default=None, help="local ONNX (default: shipped)")
+    parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: onnxruntime's)")
+    parser.add_argument("--latency-runs", type=int, default=30)
+    parser.add_argument("--latency-threads", type=int, nargs="+", default=[1, 2], help="onnxruntime thread counts to time")
+    parser.add_argument("--out", default="out/bench_detection", help="folder for the PNG curves and a JSON of all numbers")
+    parser.add_argument("--update-cards", action="store_true", help="write the measured numbers into the models' JSON cards (field 'benchmark')")
+    parser.set_defaults(func=_run)
+
+
+def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, object]:
+    from gldt_core.detect import GlobalDetector, LocalDetector, shipped_model_path
+
+    return {
+        "AM-YOLO": GlobalDetector(args.global_model or shipped_model_path("global"), score_threshold=threshold, num_threads=args.threads),
+        "no-STFF": GlobalDetector(args.nostff_model or shipped_model_path("global_nostff"), score_threshold=threshold, num_threads=args.threads),
+        "local": LocalDetector(args.local_model or shipped_model_path("local"), score_threshold=threshold, num_threads=args.threads),
+    }
+
+
+def _run_detector(name: str, detector: object, frames_prev_cur: list[tuple], roi_side: int) -> list:
+    """Drone detections ``(N, 5)`` per evaluated frame."""
+    import numpy as np
+
+    from gldt_core.detect import DRONE_CLASS_ID
+    from gldt_core.detect.postprocess import nms
+    from gldt_core.detect.video import tile_rois
+
+    out = []
+    for previous, current in frames_prev_cur:
+        if name == "local":
+            h, w = current.shape[:2]
+            dets = detector.detect_rois(current, tile_rois(w, h, roi_side))[:, :6]  # type: ignore[attr-defined]
+            if len(dets):
+                dets = dets[nms(dets[:, :4], dets[:, 4], 0.5)]
+        else:
+            dets = detector.detect(previous, current)  # type: ignore[attr-defined]
+        out.append(dets[dets[:, 5] == DRONE_CLASS_ID][:, :5] if len(dets) else np.zeros((0, 5), np.float32))
+    return out
+
+
+def _real_frames(root, clips: list[str], step: int) -> tuple[list, list]:
+    """(previous, current) frame pairs and drone gt boxes for every ``step``-th frame of the clips."""
+    from pathlib import Path
+
+    import numpy as np
+
+    from gldt_core.detect.video import iter_video_frames
+    from gldt_core.io.mot import read_mot
+
+    pairs, gts = [], []
+    for clip in clips:
+        gt = read_mot(Path(root) / "gt" / f"{clip}.txt")
+        previous = None
+        for index, frame in enumerate(iter_video_frames(Path(root) / "videos" / f"{clip}.mp4"), start=1):
+            if index % step == 0 and previous is not None:
+                rows = gt[(gt[:, 0] == index) & (gt[:, 7] == 1)]
+                boxes = np.column_stack((rows[:, 2], rows[:, 3], rows[:, 2] + rows[:, 4], rows[:, 3] + rows[:, 5]))
+                pairs.append((previous, frame))
+                gts.append(boxes)
+            previous = frame
+    return pairs, gts
+
+
+def _synthetic_frames(scenes: int, frames: int) -> tuple[list, list]:
+    import numpy as np
+
+    from gldt_core.sim import SceneRenderer, presets
+
+    pairs, gts = [], []
+    for spec in presets.split("test", count=scenes, frames=frames):
+        renderer = SceneRenderer(spec)
+        previous = renderer.render(0)
+        for k in range(1, spec.frames):
+            current, rows = renderer.render_with_truth(k)
+            if k % 3 == 0:  # every third frame keeps memory bounded
+                rows = np.asarray(rows).reshape(-1, 10)
+                rows = rows[rows[:, 7] == 1]
+                pairs.append((previous, current))
+                gts.append(np.column_stack((rows[:, 2], rows[:, 3], rows[:, 2] + rows[:, 4], rows[:, 3] + rows[:, 5])))
+            previous = current
+    return pairs, gts
+
+
+def _latency(fn, runs: int) -> float:
+    import time
+
+    import numpy as np
+
+    for _ in range(3):
+        fn()
+    times = []
+    for _ in range(runs):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times) * 1000.0)
+
+
+def _plot(curves: dict, path_pr, path_rc, title: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from gldt_core.detect.metrics import pr_auc, pr_curve, recall_at_confidence
+
+    thresholds = np.linspace(0, 1, 101)
+    for path, kind in ((path_pr, "pr"), (path_rc, "rc")):
+        fig, ax = plt.subplots(figsize=(5, 4))
+        for name, result in curves.items():
+            if kind == "pr":
+                precision, recall, _ = pr_curve(result)
+                ax.plot(recall, precision, label=f"{name} (AUC {pr_auc(result):.3f})")
+                ax.set_xlabel("recall"), ax.set_ylabel("precision")
+            else:
+                ax.plot(thresholds, recall_at_confidence(result, thresholds), label=name)
+                ax.set_xlabel("confidence"), ax.set_ylabel("recall")
+        ax.set_xlim(0, 1), ax.set_ylim(0, 1.02), ax.set_title(title), ax.legend(), ax.grid(alpha=0.3)
+        fig.tight_layout()
+        tmp = path.with_name(path.name + ".tmp.png")
+        fig.savefig(tmp, dpi=100)
+        plt.close(fig)
+        tmp.replace(path)
+
+
+def _run(args: argparse.Namespace) -> int:
+    import json
+    from pathlib import Path
+
+    import numpy as np
+
+    from gldt_core.detect.halmstad_split import halmstad_split
+    from gldt_core.detect.metrics import detection_summary, match
+
+    if args.frame_step < 1:
+        raise ValueError(f"--frame-step must be >= 1, got {args.frame_step}")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    # Accuracy uses a low threshold so the PR curves span the whole range.
+    detectors = _detectors(args, threshold=0.01)
+    roi_side = int(detectors["local"].card.get("roi_side", 300))  # type: ignore[attr-defined]
+    report: dict = {"threshold": args.score_threshold, "datasets": {}}
+
+    datasets: dict[str, tuple[list, list]] = {}
+    negatives: tuple[list, list] | None = None
+    root = Path(args.real_root)
+    if (root / "videos").is_dir():
+        split = halmstad_split(root)
+        drone = [c for c in split["val"] if c.startswith("V_DRONE")][: args.max_clips]
+        other = [c for c in split["val"] if not c.startswith("V_DRONE")]
+        if args.max_clips:
+            other = [c for c in other if c.startswith("V_BIRD")][: args.max_clips] + [c for c in other if c.startswith("V_AIRPLANE")][: args.max_clips]
+        datasets["real-val"] = _real_frames(root, drone, args.frame_step)
+        negatives = _real_frames(root, other, args.frame_step)
+        report["real_val_clips"] = drone + other
+    else:
+        print(f"real clips not found under {root}: skipping the real-data rows")
+    if args.synthetic_scenes > 0:
+        datasets["synthetic-test"] = _synthetic_frames(args.synthetic_scenes, args.synthetic_frames)
+
+    print(f"{'dataset':16s} {'model':8s} {'frames':>6s} {'gt':>5s} {'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s}")
+    for dname, (pairs, gts) in datasets.items():
+        curves = {}
+        report["datasets"][dname] = {}
+        for name, detector in detectors.items():
+            dets = _run_detector(name, detector, pairs, roi_side)
+            summary = detection_summary(dets, gts)
+            curves[name] = match(dets, gts, 0.5)
+            report["datasets"][dname][name] = summary
+            print(f"{dname:16s} {name:8s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} {summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f}")
+        _plot(curves, out / f"pr_{dname}.png", out / f"recall_confidence_{dname}.png", f"drone, {dname}")
+        a, b = report["datasets"][dname]["AM-YOLO"]["ap50"], report["datasets"][dname]["no-STFF"]["ap50"]
+        print(f"{dname}: AM-YOLO - no-STFF AP50 margin {a - b:+.3f}")
+
+    if negatives is not None and negatives[0]:
+        report["false_drones_per_frame"] = {}
+        for name, detector in detectors.items():
+            dets = _run_detector(name, detector, negatives[0], roi_side)
+            rate = float(np.mean([(d[:, 4] >= args.score_threshold).sum() for d in dets]))
+            report["false_drones_per_frame"][name] = rate
+            print(f"bird/airplane clips ({len(dets)} frames): {name:8s} false drone detections per frame at score >= {args.score_threshold}: {rate:.3f}")
+
+    frame_1080 = np.full((1080, 1920, 3), 128, np.uint8)
+    rng = np.random.default_rng(0)
+    frame_1080[:] = rng.integers(90, 170, size=(1080, 1920, 1), dtype=np.uint8)
+    rois = np.array([[100, 100, 400, 400], [800, 300, 1100, 600], [1400, 500, 1700, 800], [300, 700, 600, 1000]])
+    report["latency_ms"] = {}
+    for threads in args.latency_threads:
+        args_t = argparse.Namespace(**{**vars(args), "threads": threads})
+        timed = _detectors(args_t, threshold=args.score_threshold)
+        latency = {
+            "AM-YOLO 1080p frame": _latency(lambda: timed["AM-YOLO"].detect(frame_1080, frame_1080), args.latency_runs),  # type: ignore[attr-defined]
+            "no-STFF 1080p frame": _latency(lambda: timed["no-STFF"].detect(frame_1080, frame_1080), args.latency_runs),  # type: ignore[attr-defined]
+            "local 4 ROIs": _latency(lambda: timed["local"].detect_rois(frame_1080, rois), args.latency_runs),  # type: ignore[attr-defined]
+        }
+        report["latency_ms"][f"threads={threads}"] = latency
+        in_w, in_h = timed["AM-YOLO"].input_size(1920, 1080)  # type: ignore[attr-defined]
+        print(f"latency (median of {args.latency_runs}, onnxruntime threads={threads}; global input {in_w}x{in_h}, local input {timed['local'].input_side}):")  # type: ignore[attr-defined]
+        for key, value in latency.items():
+            print(f"  {key:22s} {value:7.1f} ms")
+        print(f"  ratio AM-YOLO / no-STFF: {latency['AM-YOLO 1080p frame'] / latency['no-STFF 1080p frame']:.2f}; "
+              f"local 4 ROIs / AM-YOLO frame: {latency['local 4 ROIs'] / latency['AM-YOLO 1080p frame']:.2f}")
+    tmp = out / "report.json.tmp"
+    tmp.write_text(json.dumps(report, indent=2))
+    tmp.replace(out / "report.json")
+    print(f"curves and report.json written to {out}")
+    if args.update_cards:
+        _update_cards(detectors, report, args)
+    return 0
+
+
+def _update_cards(detectors: dict, report: dict, args: argparse.Namespace) -> None:
+    """Record this run's numbers in each model's sidecar JSON card (atomically)."""
+    import json
+    import shlex
+    import sys
+
+    keys = {"AM-YOLO": "AM-YOLO 1080p frame", "no-STFF": "no-STFF 1080p frame", "local": "local 4 ROIs"}
+    for name, detector in detectors.items():
+        card_path = detector.model_path.with_suffix(".json")
+        card = json.loads(card_path.read_text()) if card_path.is_file() else {}
+        card["benchmark"] = {
+            "command": "gldt " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+            "datasets": {d: v[name] for d, v in report["datasets"].items()},
+            "false_drones_per_frame_on_bird_airplane_val_clips": report.get("false_drones_per_frame", {}).get(name),
+            "operating_threshold": report["threshold"],
+            "latency_ms": {t: v[keys[name]] for t, v in report["latency_ms"].items()},
+            "latency_note": "median wall time incl. pre/post-processing, onnxruntime CPU, shared 2-core machine",
+        }
+        tmp = card_path.with_name(card_path.name + ".tmp")
+        tmp.write_text(json.dumps(card, indent=2, sort_keys=True) + "\n")
+        tmp.replace(card_path)
+        print(f"updated {card_path}")

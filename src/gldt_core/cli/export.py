@@ -1,0 +1,82 @@
+"""``gldt export CHECKPOINT --out MODEL.onnx``: ONNX (opset 17) + JSON model card (needs torch)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "export",
+        help="export a trained detector checkpoint to ONNX plus a JSON model card (needs torch)",
+        description=(
+            "Export best.pt/last.pt from `gldt train` to ONNX. The global model gets inputs previous/current "
+            "with dynamic height/width; the local model gets a dynamic batch. The card (same stem, .json) records "
+            "input size, strides, classes, training data and validation metrics, and the torch-vs-onnxruntime check."
+        ),
+    )
+    parser.add_argument("checkpoint", help="checkpoint written by `gldt train` (or an .onnx model with --int8)")
+    parser.add_argument("--out", required=True, help="output .onnx path (card written next to it)")
+    parser.add_argument("--name", default=None, help="model name for the card (default: file stem)")
+    parser.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=None, help="example/nominal input size (default: global 640 384, local from the config)")
+    parser.add_argument("--note", default="", help="free text for the card (e.g. how the model was trained)")
+    parser.add_argument("--int8", action="store_true", help="quantize an exported .onnx (static int8, calibrated on Halmstad training clips; no torch needed)")
+    parser.add_argument("--calibration-root", default="/work/shared/data/halmstad-visible", help="Halmstad clips for --int8 calibration")
+    parser.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    if args.int8:
+        from gldt_core.detect.quantize import quantize_model
+
+        if Path(args.checkpoint).suffix != ".onnx":
+            raise ValueError(f"--int8 quantizes an exported .onnx model, got {args.checkpoint}")
+        out = quantize_model(args.checkpoint, args.out, args.calibration_root)
+        print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
+        return 0
+
+    try:
+        from gldt_core.nn.export import export_onnx, example_inputs, torch_vs_onnx
+        from gldt_core.nn.train import load_checkpoint
+    except ImportError as error:
+        raise ValueError(f"export needs torch and onnx (pip install torch==2.13.0 onnx): {error}") from error
+
+    out = Path(args.out)
+    if out.suffix != ".onnx":
+        raise ValueError(f"--out must end with .onnx, got {out}")
+    model, ckpt = load_checkpoint(args.checkpoint)
+    task = ckpt.get("task", "global" if model.spec.dual_frame else "local")
+    if args.size:
+        width, height = args.size
+    elif task == "global":
+        width, height = 640, 384
+    else:
+        side = int(ckpt["config"]["data"]["val_size"][0])
+        width, height = side, side
+    card = {
+        "name": args.name or out.stem,
+        "task": task,
+        "architecture": "AM-YOLO (dual-frame, STFF)" if model.spec.stff_levels else ("YOLO11-style, no STFF" if task == "global" else "YOLO11-P2-style local ROI detector"),
+        "checkpoint_epoch": ckpt.get("epoch"),
+        "validation_during_training": ckpt.get("metrics"),
+        "training_data": ckpt.get("data"),
+        "training_wall_s": ckpt.get("train_wall_s"),
+        "training_config": ckpt.get("config"),
+        "note": args.note,
+    }
+    log = Path(args.checkpoint).with_name("log.csv")
+    if log.is_file():  # the per-epoch curve, so the card shows how training went, not just one epoch
+        import csv
+
+        with log.open() as fh:
+            card["training_log"] = [{k: (round(float(v), 4) if v not in ("", None) else None) for k, v in row.items()} for row in csv.DictReader(fh)]
+    if task == "local":
+        card["roi_side"] = int(ckpt["config"]["data"].get("val_roi", 300))
+    card = export_onnx(model, out, width, height, card)
+    diffs = []
+    for seed in (0, 1):
+        diffs.append(torch_vs_onnx(model, out, example_inputs(model, width, height, batch=1 if task == "global" else 4, seed=seed)))
+    print(f"wrote {out} ({card['size_bytes'] / 1e6:.2f} MB) and {out.with_suffix('.json')}; torch vs onnxruntime max |diff| {max(diffs):.2e}")
+    return 0

@@ -1,0 +1,39 @@
+"""``gldt train global|local --config CFG``: train a detector (needs the optional torch extra)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "train",
+        help="train the global (AM-YOLO) or local detector from a YAML config (needs torch)",
+        description="Train a detector. Writes config.yaml, log.csv, curves.png, last.pt and best.pt to the run directory.",
+    )
+    parser.add_argument("task", choices=("global", "local"), help="which detector to train")
+    parser.add_argument("--config", required=True, help="training YAML (see src/gldt_core/configs/)")
+    parser.add_argument("--out", default=None, help="run directory (default: out_dir from the config)")
+    parser.add_argument("--seed", type=int, default=None, help="override the config's seed")
+    parser.add_argument("--epochs", type=int, default=None, help="override train.epochs")
+    parser.add_argument("--steps-per-epoch", type=int, default=None, help="override train.steps_per_epoch")
+    parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    parser.set_defaults(func=_run)
+
+
+def _run(args: argparse.Namespace) -> int:
+    try:
+        from gldt_core.nn.train import load_config, train
+    except ImportError as error:  # torch is an optional extra
+        raise ValueError(f"training needs torch (pip install torch==2.13.0 onnx): {error}") from error
+
+    config = load_config(args.config)
+    if args.seed is not None:
+        config["seed"] = args.seed
+    if args.epochs is not None:
+        config["train"]["epochs"] = args.epochs
+    if args.steps_per_epoch is not None:
+        config["train"]["steps_per_epoch"] = args.steps_per_epoch
+    best = train(args.task, config, out_dir=args.out, progress=not args.no_progress)
+    print(f"best checkpoint: {best}")
+    return 0

@@ -1,0 +1,51 @@
+"""The fixed train/validation split of the Halmstad visible clips used by the detectors.
+
+Validation clips are never trained on, so the numbers in the model cards and in
+``gldt bench detection`` are measured on footage the shipped models have not seen. The rule is
+simple and stable: within each category (``V_DRONE``, ``V_BIRD``, ``V_AIRPLANE``), sorted by name,
+every clip whose position ``i`` satisfies ``i % 5 == 2`` is held out (about 20 %). The rule, not a
+hard-coded list, is the contract, so it still works if clips are added.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+CATEGORIES = ("V_DRONE", "V_BIRD", "V_AIRPLANE")
+HOLDOUT_PERIOD = 5
+HOLDOUT_PHASE = 2
+DEFAULT_ROOT = Path("/work/shared/data/halmstad-visible")
+
+
+def clip_category(name: str) -> str:
+    """``V_DRONE_012`` -> ``V_DRONE``; raises ValueError for names outside the dataset's scheme."""
+    for category in CATEGORIES:
+        if name.startswith(category + "_"):
+            return category
+    raise ValueError(f"clip {name!r} is not a Halmstad clip name (expected one of {CATEGORIES} + '_NNN')")
+
+
+def split_clips(names: list[str]) -> dict[str, list[str]]:
+    """Split clip names (stems, no extension) into ``{"train": [...], "val": [...]}``."""
+    by_category: dict[str, list[str]] = {c: [] for c in CATEGORIES}
+    for name in names:
+        by_category[clip_category(name)].append(name)
+    split: dict[str, list[str]] = {"train": [], "val": []}
+    for category in CATEGORIES:
+        for i, name in enumerate(sorted(by_category[category])):
+            split["val" if i % HOLDOUT_PERIOD == HOLDOUT_PHASE else "train"].append(name)
+    return split
+
+
+def list_clips(root: Path | str = DEFAULT_ROOT) -> list[str]:
+    """Clip stems that have both a video and a ground-truth file under ``root``."""
+    root = Path(root)
+    videos = root / "videos"
+    if not videos.is_dir():
+        raise FileNotFoundError(f"Halmstad clips not found: {videos} is not a directory")
+    return sorted(p.stem for p in videos.glob("*.mp4") if (root / "gt" / f"{p.stem}.txt").is_file())
+
+
+def halmstad_split(root: Path | str = DEFAULT_ROOT) -> dict[str, list[str]]:
+    """The train/val split of the clips present under ``root``."""
+    return split_clips(list_clips(root))

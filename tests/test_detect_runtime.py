@@ -1,0 +1,117 @@
+"""onnxruntime wrappers around the shipped models: contract, ROI batching/mapping and bad input."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from gldt_core.detect import DRONE_CLASS_ID, DetectorConfigError, GlobalDetector, LocalDetector, shipped_model_path
+
+HALMSTAD = Path("/work/shared/data/halmstad-visible")
+
+
+def textured_frame(w: int, h: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    frame = np.clip(rng.normal(150, 12, size=(h, w, 3)), 0, 255).astype(np.uint8)
+    frame[h // 3 : h // 3 + 12, w // 2 : w // 2 + 20] = 30  # a dark small object
+    return frame
+
+
+@pytest.fixture(scope="module")
+def global_detector() -> GlobalDetector:
+    return GlobalDetector(score_threshold=0.0, num_threads=1)
+
+
+@pytest.fixture(scope="module")
+def local_detector() -> LocalDetector:
+    return LocalDetector(score_threshold=0.0, num_threads=1)
+
+
+def test_shipped_models_exist_with_cards_and_fit_the_size_budget() -> None:
+    for kind in ("global", "global_nostff", "local"):
+        path = shipped_model_path(kind)
+        assert path.is_file() and path.stat().st_size <= 15 * 1024 * 1024
+        card = json.loads(path.with_suffix(".json").read_text())
+        assert card["opset"] >= 17 and card["class_ids"] == [1, 2, 3]
+        assert card["inputs"] == (["previous", "current"] if kind == "global" else ["images"] if kind == "local" else card["inputs"])
+
+
+def test_global_detect_contract(global_detector: GlobalDetector) -> None:
+    prev, cur = textured_frame(1920, 1080, 1), textured_frame(1920, 1080, 2)
+    assert global_detector.input_size(1920, 1080) == (640, 384)
+    dets = global_detector.detect(prev, cur)
+    assert dets.dtype == np.float32 and dets.ndim == 2 and dets.shape[1] == 6 and len(dets) > 0
+    assert (dets[:, 0] >= 0).all() and (dets[:, 2] <= 1920).all() and (dets[:, 1] >= 0).all() and (dets[:, 3] <= 1080).all()
+    assert (dets[:, 2] >= dets[:, 0]).all() and (dets[:, 3] >= dets[:, 1]).all()
+    assert set(np.unique(dets[:, 5]).tolist()) <= {1.0, 2.0, 3.0}
+    assert (np.diff(dets[:, 4]) <= 0).all()  # sorted by score
+
+
+def test_global_accepts_grayscale_and_first_frame(global_detector: GlobalDetector) -> None:
+    gray = textured_frame(640, 512)[..., 0]
+    a = global_detector.detect(None, gray)
+    b = global_detector.detect(np.dstack([gray] * 3), np.dstack([gray] * 3))
+    assert np.allclose(a, b)
+    with pytest.raises(ValueError, match="differ in size"):
+        global_detector.detect(textured_frame(640, 480), textured_frame(640, 512))
+    with pytest.raises(ValueError, match="uint8"):
+        global_detector.detect(None, np.zeros((100, 100, 3), np.float64))
+
+
+def test_odd_sized_frames_map_inside_the_frame(global_detector: GlobalDetector) -> None:
+    frame = textured_frame(333, 211)
+    dets = global_detector.detect(frame, frame)
+    assert global_detector.input_size(333, 211)[0] % global_detector.multiple == 0
+    assert (dets[:, 2] <= 333).all() and (dets[:, 3] <= 211).all()
+
+
+def test_rois_map_back_to_full_frame(local_detector: LocalDetector) -> None:
+    frame = textured_frame(800, 600)
+    roi = np.array([[300, 150, 600, 450]])
+    full = local_detector.detect_rois(frame, roi)
+    alone = local_detector.detect_rois(np.ascontiguousarray(frame[150:450, 300:600]), np.array([[0, 0, 300, 300]]))
+    assert full.shape[1] == 7 and len(full) == len(alone) > 0
+    assert np.allclose(full[:, :4] - [300, 150, 300, 150], alone[:, :4], atol=1e-3)
+    assert np.allclose(full[:, 4:6], alone[:, 4:6])
+    assert (full[:, 6] == 0).all()
+
+
+def test_rois_run_as_one_batch_equal_to_single_calls(local_detector: LocalDetector) -> None:
+    frame = textured_frame(1920, 1080)
+    rois = np.array([[0, 0, 300, 300], [900, 300, 1200, 600], [1700, 900, 2000, 1200]])  # last one sticks out
+    batched = local_detector.detect_rois(frame, rois)
+    for index, roi in enumerate(rois):
+        single = local_detector.detect_rois(frame, roi[None])
+        part = batched[batched[:, 6] == index]
+        assert len(part) == len(single)
+        assert np.allclose(part[:, :6], single[:, :6], atol=1e-3)
+    assert (batched[:, 2] <= 1920).all() and (batched[:, 3] <= 1080).all()
+    assert local_detector.detect_rois(frame, np.zeros((0, 4))).shape == (0, 7)
+
+
+def test_bad_rois_are_rejected(local_detector: LocalDetector) -> None:
+    frame = textured_frame(640, 480)
+    with pytest.raises(ValueError, match="\\(R, 4\\)"):
+        local_detector.detect_rois(frame, np.array([1, 2, 3, 4]))
+    with pytest.raises(ValueError, match="outside"):
+        local_detector.detect_rois(frame, np.array([[700, 0, 1000, 300]]))
+    with pytest.raises(ValueError, match="empty or inverted"):
+        local_detector.detect_rois(frame, np.array([[10, 10, 10, 300]]))
+
+
+def test_unusable_models_raise_config_errors(tmp_path: Path) -> None:
+    missing = tmp_path / "nope.onnx"
+    with pytest.raises(DetectorConfigError, match="nope.onnx.*not found"):
+        GlobalDetector(missing)
+    corrupt = tmp_path / "corrupt.onnx"
+    corrupt.write_bytes(b"this is not a protobuf")
+    with pytest.raises(DetectorConfigError, match="corrupt.onnx.*cannot load"):
+        LocalDetector(corrupt)
+    with pytest.raises(DetectorConfigError, match="local detector needs one"):
+        LocalDetector(shipped_model_path("global"))
+    with pytest.raises(DetectorConfigError, match="not available"):
+        GlobalDetector(providers=("NoSuchExecutionProvider",))
+    assert issubclass(DetectorConfigError, ValueError)
