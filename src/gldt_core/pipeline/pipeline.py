@@ -81,7 +81,7 @@ class PipelineState:
     frame_size: tuple[int, int] | None
 
 
-def _accepts_keyword(function: Any, name: str) -> bool:
+def accepts_keyword(function: Any, name: str) -> bool:
     """Whether ``function`` takes keyword ``name`` (trackers may or may not use ROIs)."""
     import inspect
 
@@ -172,7 +172,7 @@ class GLDTPipeline:
         self._owns_tracker = tracker is None
         self.tracker = tracker if tracker is not None else build_tracker(self.config)
         self._tracker_size: tuple[int, int] | None = None
-        self._tracker_takes_rois = _accepts_keyword(self.tracker.update, "rois")
+        self._tracker_takes_rois = accepts_keyword(self.tracker.update, "rois")
         self.scheduler = ModeScheduler(self.config.scheduler)
         self.timer = timer or StageTimer()
         self._frame_index = 0

@@ -17,11 +17,11 @@ from visualization_msgs.msg import MarkerArray
 
 from gldt_core.geometry import PinholeIntrinsics
 from gldt_core.pipeline.config import PipelineConfig, TrackerSettings
-from gldt_core.pipeline.pipeline import build_tracker
+from gldt_core.pipeline.pipeline import accepts_keyword, build_tracker
 from gldt_core.pipeline.steps import stable_predictions
 
 from gldt_ros import qos, topics
-from gldt_ros.convert import detection_array_to_tracker_input, track_to_msg
+from gldt_ros.convert import detection_array_to_tracker_input, msgs_to_rois, track_to_msg
 from gldt_ros.planner import fill_planner_fields, markers_for
 from gldt_ros.node_base import GldtNode, run_node
 
@@ -37,6 +37,7 @@ class TrackerNode(GldtNode):
             tracker=TrackerSettings(name=self.param("tracker")), track_lost_frames=int(self.param("lost_frames_kept"))
         )
         self.tracker = build_tracker(self.config)
+        self._takes_rois = accepts_keyword(self.tracker.update, "rois")
         self._frame_size: tuple[int, int] | None = None
         self.intrinsics = None
         self._last_stamp: float | None = None
@@ -90,7 +91,15 @@ class TrackerNode(GldtNode):
             )
             self.tracker.reset()
         self._last_stamp = t
-        rows = np.asarray(self.tracker.update(detection_array_to_tracker_input(message), t), dtype=np.float64).reshape(-1, 6)
+        detections = detection_array_to_tracker_input(message)
+        if self._takes_rois:
+            # PMR's x_rel / y_rel features are relative to the ROI a detection came from.
+            rois = msgs_to_rois(message.rois).astype(np.float64)
+            detection_rois = rois[[d.roi_index for d in message.detections]] if len(rois) else None
+            output = self.tracker.update(detections, t, rois=detection_rois)
+        else:
+            output = self.tracker.update(detections, t)
+        rows = np.asarray(output, dtype=np.float64).reshape(-1, 6)
         by_id = {int(track.track_id): track for track in self.tracker.tracks}
         tracks = []
         for x1, y1, x2, y2, track_id, score in rows:

@@ -43,6 +43,7 @@ class LocalDetectorNode(GldtNode):
                 mode=DetectionArray.MODE_LOCAL,
                 processing_time=time.perf_counter() - start,
                 detections=detections_to_msgs(detections, Detection.SOURCE_LOCAL),
+                rois=list(message.rois),
             )
         )
 
