@@ -13,8 +13,9 @@ from gldt_core.detect import LocalDetector, shipped_model_path
 from gldt_core.detect.metrics import box_iou
 from gldt_core.detect.quantize import quantize_model
 from gldt_core.io.mot import read_mot
+from gldt_core.paths import halmstad_root
 
-ROOT = Path("/work/shared/data/halmstad-visible")
+ROOT = halmstad_root()
 
 
 @pytest.mark.skipif(not (ROOT / "videos").is_dir(), reason=f"calibration needs the real Halmstad clips in {ROOT}")

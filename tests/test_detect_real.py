@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -12,8 +11,9 @@ from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector, LocalDetector
 from gldt_core.detect.halmstad_split import halmstad_split
 from gldt_core.detect.metrics import box_iou
 from gldt_core.io.mot import read_mot
+from gldt_core.paths import halmstad_root
 
-ROOT = Path("/work/shared/data/halmstad-visible")
+ROOT = halmstad_root()
 CLIPS = ("V_DRONE_004", "V_DRONE_064")
 
 pytestmark = pytest.mark.skipif(not (ROOT / "videos").is_dir(), reason=f"needs the real Halmstad clips in {ROOT}")

@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gldt_core.detect import DRONE_CLASS_ID, DetectorConfigError, GlobalDetector, LocalDetector, shipped_model_path
+from gldt_core.detect import DetectorConfigError, GlobalDetector, LocalDetector, shipped_model_path
+from gldt_core.paths import halmstad_root
 
-HALMSTAD = Path("/work/shared/data/halmstad-visible")
+HALMSTAD = halmstad_root()
 
 
 def textured_frame(w: int, h: int, seed: int = 0) -> np.ndarray:

@@ -14,8 +14,9 @@ from gldt_core.detect import DetectorConfigError, GlobalDetector, LocalDetector
 from gldt_core.detect.postprocess import letterbox, rect_input_size, to_blob
 from gldt_core.nn.export import OPSET, example_inputs, export_onnx, torch_vs_onnx
 from gldt_core.nn.models import Detector, ModelSpec
+from gldt_core.paths import halmstad_root
 
-HALMSTAD = Path("/work/shared/data/halmstad-visible")
+HALMSTAD = halmstad_root()
 TINY = dict(channels=(4, 8, 8, 16, 16), depth=1, num_classes=3, reg_max=8)
 
 # Single-threaded: on shared CPUs OpenMP barriers make multi-threaded small ops much slower.
@@ -81,7 +82,7 @@ def test_runtime_wrappers_load_exported_models(exported) -> None:
         LocalDetector(gpath)
 
 
-@pytest.mark.skipif(not (HALMSTAD / "videos").is_dir(), reason="needs the real Halmstad clips in /work/shared/data/halmstad-visible")
+@pytest.mark.skipif(not (HALMSTAD / "videos").is_dir(), reason=f"needs the real Halmstad clips in {HALMSTAD} (../shared beside the checkout)")
 def test_export_matches_torch_on_a_real_frame_pair(exported) -> None:
     import cv2
 

@@ -81,7 +81,6 @@ def test_target_spans_respect_the_requested_range() -> None:
 def test_boxes_lie_on_drawn_pixels_and_nothing_is_drawn_elsewhere(seed: int) -> None:
     spec = SceneSpec(seed=seed, frames=40, size=(960, 540), targets=3, target_size=(5.0, 40.0))
     renderer = SceneRenderer(spec)
-    height, width = 540, 960
     checked = 0
     for frame in (0, 13, 39):
         diff = _diff(renderer, frame)

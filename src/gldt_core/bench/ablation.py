@@ -42,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--clip-frames", type=int, default=None, help="frames per clip (default: all)")
     parser.add_argument(
         "--halmstad",
-        default="/work/shared/data/halmstad-visible",
+        default=None,
         help="Halmstad dataset root (skipped with a message when absent)",
     )
     parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration (defaults: Table I)")
@@ -250,6 +250,9 @@ def handle_ablation(args: argparse.Namespace) -> int:
         report["synthetic_1080p"] = rows
         print(format_table(f"synthetic 1080p test scenes: {len(sequences)} x {args.frames} frames", rows))
     if args.clips:
+        from gldt_core.paths import halmstad_root
+
+        args.halmstad = args.halmstad or str(halmstad_root())
         if not Path(args.halmstad, "videos").is_dir():
             print(f"halmstad: skipped, {args.halmstad}/videos not found")
         else:

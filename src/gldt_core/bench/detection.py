@@ -22,7 +22,7 @@ import argparse
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("detection", help="AP50 / AP50:95 / AP_small / PR AUC / latency of the detectors")
-    parser.add_argument("--real-root", default="/work/shared/data/halmstad-visible", help="Halmstad clips (skipped when absent)")
+    parser.add_argument("--real-root", default=None, help="Halmstad clips (skipped when absent)")
     parser.add_argument("--frame-step", type=int, default=10, help="evaluate every N-th frame of each real clip")
     parser.add_argument("--max-clips", type=int, default=None, help="limit the held-out clips per category (quick runs)")
     parser.add_argument("--synthetic-scenes", type=int, default=6, help="synthetic test scenes (0 to skip)")
@@ -176,7 +176,9 @@ def _run(args: argparse.Namespace) -> int:
 
     datasets: dict[str, tuple[list, list]] = {}
     negatives: tuple[list, list] | None = None
-    root = Path(args.real_root)
+    from gldt_core.paths import halmstad_root
+
+    root = Path(args.real_root or halmstad_root())
     if (root / "videos").is_dir():
         split = halmstad_split(root)
         drone = [c for c in split["val"] if c.startswith("V_DRONE")][: args.max_clips]

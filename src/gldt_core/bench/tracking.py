@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import argparse
 
-DEFAULT_HALMSTAD = "/work/shared/data/halmstad-visible"
+DEFAULT_HALMSTAD = None  # resolved by gldt_core.paths.halmstad_root() when used
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -121,7 +121,9 @@ def _load_sequences(args: argparse.Namespace) -> tuple[dict, list[str]]:
     for k in range(args.sim_scenes):
         gt = generator(args.seed + 1000 + k, args.sim_frames)
         groups["synthetic"][f"sim{k:02d}"] = (gt, (1920, 1080))
-    gt_dir = Path(args.halmstad) / "gt"
+    from gldt_core.paths import halmstad_root
+
+    gt_dir = Path(args.halmstad or halmstad_root()) / "gt"
     files = sorted(gt_dir.glob("V_DRONE_*.txt")) if gt_dir.is_dir() else []
     if not files:
         notes.append(f"real streams SKIPPED: no V_DRONE_*.txt under {gt_dir}")

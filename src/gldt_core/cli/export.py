@@ -21,7 +21,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=None, help="example/nominal input size (default: global 640 384, local from the config)")
     parser.add_argument("--note", default="", help="free text for the card (e.g. how the model was trained)")
     parser.add_argument("--int8", action="store_true", help="quantize an exported .onnx (static int8, calibrated on Halmstad training clips; no torch needed)")
-    parser.add_argument("--calibration-root", default="/work/shared/data/halmstad-visible", help="Halmstad clips for --int8 calibration")
+    parser.add_argument("--calibration-root", default=None, help="Halmstad clips for --int8 calibration")
     parser.set_defaults(func=_run)
 
 
@@ -33,7 +33,9 @@ def _run(args: argparse.Namespace) -> int:
 
         if Path(args.checkpoint).suffix != ".onnx":
             raise ValueError(f"--int8 quantizes an exported .onnx model, got {args.checkpoint}")
-        out = quantize_model(args.checkpoint, args.out, args.calibration_root)
+        from gldt_core.paths import halmstad_root
+
+        out = quantize_model(args.checkpoint, args.out, args.calibration_root or str(halmstad_root()))
         print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
         return 0
 

@@ -11,10 +11,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from gldt_core.paths import halmstad_root
+
 CATEGORIES = ("V_DRONE", "V_BIRD", "V_AIRPLANE")
 HOLDOUT_PERIOD = 5
 HOLDOUT_PHASE = 2
-DEFAULT_ROOT = Path("/work/shared/data/halmstad-visible")
+DEFAULT_ROOT = halmstad_root()
 
 
 def clip_category(name: str) -> str:

@@ -17,7 +17,7 @@ NMS and maps boxes back.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, asdict
+from dataclasses import dataclass, asdict
 from typing import Any
 
 import torch

@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 import torch
 import yaml
-from torch.utils.data import ConcatDataset, DataLoader, Subset
+from torch.utils.data import DataLoader, Subset
+
+from gldt_core.paths import halmstad_root
 
 from gldt_core.detect.halmstad_split import halmstad_split
 from gldt_core.detect.metrics import detection_summary
@@ -29,7 +31,7 @@ from gldt_core.detect.postprocess import decode_output
 
 from .data import GlobalPairDataset, LocalCropDataset, collate_crops, collate_pairs, load_halmstad, load_synthetic
 from .loss import DetectionLoss
-from .models import Detector, ModelSpec, count_parameters
+from .models import Detector, ModelSpec
 
 TASKS = ("global", "local")
 
@@ -39,7 +41,7 @@ DEFAULTS: dict[str, Any] = {
     "out_dir": "runs/{task}",
     "model": {},
     "data": {
-        "halmstad_root": "/work/shared/data/halmstad-visible",
+        "halmstad_root": str(halmstad_root()),
         "cache_dir": "/tmp/gldt-cache",
         "train_frame_step": 10,
         "val_frame_step": 15,
