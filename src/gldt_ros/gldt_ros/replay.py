@@ -13,6 +13,17 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from gldt_ros import qos, topics
 from gldt_ros.bag_io import IMAGE_TYPES_SET, McapRecorder, bag_topics, header_stamp_ns, iter_bag, message_class
 
+#: Subscriptions each node creates last, once its models and state are ready: the graph is up when
+#: every one of them is matched (node names alone appear before a node finished starting).
+READY_SUBSCRIPTIONS = {
+    topics.FRAME_TICKS: 1,  # jptrack_tracker
+    topics.TRACK_PREDICTIONS: 1,  # mode_scheduler
+    topics.SCHEDULER_STATE: 1,  # frame_pair_buffer
+    topics.FRAME_PAIRS: 1,  # global_detector
+    topics.ROI_CROPS: 1,  # local_detector
+    topics.DETECTIONS: 2,  # jptrack_tracker, mode_scheduler
+}
+
 RECORDED_TOPICS = {
     topics.TRACKS: "gldt_msgs/msg/TrackArray",
     topics.DETECTIONS: "gldt_msgs/msg/DetectionArray",
@@ -62,7 +73,9 @@ class GraphDriver(Node):
             present = {
                 (namespace.rstrip("/") + "/" + name) for name, namespace in self.get_node_names_and_namespaces()
             }
-            if wanted <= present:
+            if wanted <= present and all(
+                self.count_subscribers(topic) >= count for topic, count in READY_SUBSCRIPTIONS.items()
+            ):
                 return True
             time.sleep(0.1)
         print(f"pipeline: nodes not up after {timeout_s:.0f} s: {sorted(wanted - present)}", flush=True)

@@ -45,7 +45,7 @@ class TrackerNode(GldtNode):
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
         self.create_subscription(CameraInfo, topics.CAMERA_INFO, self.guarded(self.on_camera_info, "camera_info"), qos.camera_qos(self.param("camera_qos")))
         self.track_publisher = self.create_publisher(TrackArray, topics.TRACKS, qos.RELIABLE)
-        self.prediction_publisher = self.create_publisher(TrackPredictions, "gldt/track_predictions", qos.RELIABLE)
+        self.prediction_publisher = self.create_publisher(TrackPredictions, topics.TRACK_PREDICTIONS, qos.RELIABLE)
         self.marker_publisher = self.create_publisher(MarkerArray, topics.TRACK_MARKERS, qos.RELIABLE)
 
     def on_camera_info(self, message: CameraInfo) -> None:

@@ -49,10 +49,10 @@ class ModeSchedulerNode(GldtNode):
         self._awaiting_since = 0.0
         self.create_timer(0.05, self._check_report_timeout)
         self._queue: deque[TrackPredictions] = deque()
-        self.create_subscription(TrackPredictions, "gldt/track_predictions", self.guarded(self.on_predictions, "predictions"), qos.RELIABLE)
+        self.create_subscription(TrackPredictions, topics.TRACK_PREDICTIONS, self.guarded(self.on_predictions, "predictions"), qos.RELIABLE)
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
         self.state_publisher = self.create_publisher(SchedulerState, topics.SCHEDULER_STATE, qos.RELIABLE)
-        self.latched_publisher = self.create_publisher(SchedulerState, "gldt/scheduler/latest", qos.LATCHED_STATE)
+        self.latched_publisher = self.create_publisher(SchedulerState, topics.SCHEDULER_LATEST, qos.LATCHED_STATE)
         self.roi_publisher = self.create_publisher(RoiArray, topics.ROIS, qos.RELIABLE)
 
     def on_predictions(self, message: TrackPredictions) -> None:
