@@ -11,6 +11,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from gldt_core.detect.postprocess import nms
+
 
 def _state_name(state: Any) -> str:
     return str(getattr(state, "name", state)).upper()
@@ -59,28 +61,11 @@ def filter_classes(raw: np.ndarray, columns: int, classes: Sequence[int] | None)
     return raw
 
 
-def nms_xyxy(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:
-    """Indices kept by greedy class-agnostic NMS (highest score first)."""
-    order = np.argsort(-scores, kind="stable")
-    keep: list[int] = []
-    areas = np.clip(boxes[:, 2] - boxes[:, 0], 0, None) * np.clip(boxes[:, 3] - boxes[:, 1], 0, None)
-    while order.size:
-        i = int(order[0])
-        keep.append(i)
-        rest = order[1:]
-        iw = np.clip(np.minimum(boxes[i, 2], boxes[rest, 2]) - np.maximum(boxes[i, 0], boxes[rest, 0]), 0, None)
-        ih = np.clip(np.minimum(boxes[i, 3], boxes[rest, 3]) - np.maximum(boxes[i, 1], boxes[rest, 1]), 0, None)
-        inter = iw * ih
-        iou = inter / np.maximum(areas[i] + areas[rest] - inter, 1e-9)
-        order = rest[iou <= iou_threshold]
-    return np.array(keep, dtype=np.int64)
-
-
 def merge_local_detections(raw: np.ndarray, classes: Sequence[int] | None, nms_iou: float) -> np.ndarray:
     """Class filter, then NMS across overlapping ROIs: ``(N, 7)`` local detections for the tracker."""
     raw = filter_classes(raw, 7, classes)
     if len(raw) > 1:
-        raw = raw[nms_xyxy(raw[:, :4], raw[:, 4], nms_iou)]
+        raw = raw[nms(raw[:, :4], raw[:, 4], nms_iou)]
     return raw
 
 
