@@ -194,3 +194,23 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
     # catches a graph that does not resume; closing the gap to 2 s is open work (README).
     assert resumed[0] - back[1] <= 3.0, f"tracks resumed {resumed[0] - back[1]:.1f} s after the restart"
     assert len(resumed) >= 20, f"only {len(resumed)} frames tracked after the restart"
+
+
+def test_debug_overlay_is_published_while_someone_watches(graph: InProcessGraph) -> None:
+    from sensor_msgs.msg import Image
+
+    overlays: list = []
+    subscription = graph.probe.create_subscription(Image, "gldt/debug_image", overlays.append, 10)
+    deadline = time.monotonic() + 10
+    while graph.buffer.debug_image.get_subscription_count() == 0 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    frame = sky(640, 480)
+    graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(frame, graph.header())), True)
+    deadline = time.monotonic() + 10
+    while not overlays and time.monotonic() < deadline:
+        time.sleep(0.05)
+    graph.probe.destroy_subscription(subscription)
+    assert overlays, "no debug overlay while subscribed"
+    assert (overlays[-1].width, overlays[-1].height, overlays[-1].encoding) == (640, 480, "bgr8")
+    drawn = np.frombuffer(bytes(overlays[-1].data), np.uint8).reshape(480, 640, 3)
+    assert np.any(drawn != frame), "the overlay should draw the mode banner onto the frame"

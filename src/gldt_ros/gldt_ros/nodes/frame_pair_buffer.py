@@ -13,14 +13,14 @@ from collections import OrderedDict
 from typing import Any
 
 import numpy as np
-from gldt_msgs.msg import FramePair, FrameTick, RoiCrops, SchedulerState
+from gldt_msgs.msg import FramePair, FrameTick, RoiCrops, SchedulerState, TrackArray
 from sensor_msgs.msg import CompressedImage, Image
 
 from gldt_core.detect import GlobalDetector, LocalDetector
 from gldt_core.detect.staged import prepare_global_input
 
 from gldt_ros import qos, topics
-from gldt_ros.convert import bgr_to_image, image_to_bgr, msgs_to_rois
+from gldt_ros.convert import bgr_to_image, image_to_bgr, msgs_to_rois, track_array_to_rows
 from gldt_ros.node_base import GldtNode, run_node
 
 #: Frames kept while waiting for the scheduler's answer (the answer normally comes within one).
@@ -48,6 +48,10 @@ class FramePairBuffer(GldtNode):
         self.ticks = self.create_publisher(FrameTick, topics.FRAME_TICKS, qos.RELIABLE)
         self.pairs = self.create_publisher(FramePair, topics.FRAME_PAIRS, qos.RELIABLE)
         self.crops = self.create_publisher(RoiCrops, topics.ROI_CROPS, qos.RELIABLE)
+        # Debug overlay: drawn here, where the full frame is, and only while someone watches.
+        self.debug_image = self.create_publisher(Image, topics.DEBUG_IMAGE, 2)
+        self._decisions: OrderedDict[int, tuple[str, np.ndarray]] = OrderedDict()
+        self.create_subscription(TrackArray, topics.TRACKS, self.guarded(self.on_tracks, "tracks"), qos.RELIABLE)
 
     def on_image(self, message: Any) -> None:
         frame = image_to_bgr(message)
@@ -103,11 +107,30 @@ class FramePairBuffer(GldtNode):
                     crops=crops,
                 )
             )
+        self._decisions[index] = ("GD" if decision.mode == SchedulerState.MODE_GLOBAL else "LD", msgs_to_rois(decision.rois))
+        while len(self._decisions) > PENDING_FRAMES:
+            self._decisions.popitem(last=False)
         # Every frame becomes the next frame's predecessor, LD frames included, so the first GD
         # frame after an LD stretch still gets a true consecutive pair.
         for stale in [i for i in self._frames if i < index]:
             del self._frames[stale]
         self._previous_index = index
+
+
+    def on_tracks(self, array: TrackArray) -> None:
+        """Publish the debug overlay (boxes, ids, mode, ROIs) of the frame these tracks are for."""
+        if self.debug_image.get_subscription_count() == 0:
+            return
+        index = int(array.frame_index)
+        if index not in self._frames:
+            return  # already evicted: the overlay is best effort
+        from gldt_core.pipeline.overlay import draw_overlay
+
+        header, frame = self._frames[index]
+        mode, rois = self._decisions.get(index, ("GD", np.zeros((0, 4), np.int64)))
+        rows = track_array_to_rows(array)
+        overlay = draw_overlay(frame, rows[:, :5], mode, rois if len(rois) else None, index)
+        self.debug_image.publish(bgr_to_image(overlay, header))
 
 
 def create_node(cli_args: list[str] | None = None) -> FramePairBuffer:
