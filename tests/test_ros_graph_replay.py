@@ -113,3 +113,22 @@ def test_graph_tracks_meet_the_mota_floor(replay) -> None:
     drones = ground_truth[ground_truth[:, 7] == 1]
     metrics = evaluate_sequence(drones, graph)
     assert metrics["MOTA"] >= MOTA_FLOOR[bag.name], f"{bag.name}: MOTA {metrics['MOTA']:.3f}"
+
+
+def test_a_namespaced_graph_serves_its_own_camera(tmp_path: Path) -> None:
+    """`--namespace cam_a` moves camera input and outputs under /cam_a: one graph per camera."""
+    from gldt_core.io.recording import iter_recorded, recorded_track_rows
+
+    bag = REPO / "bags" / "halmstad_v_drone_001"
+    record = tmp_path / "cam_a.mcap"
+    completed = subprocess.run(
+        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--namespace", "cam_a", "--record", str(record)],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
+    topics = {topic for topic, _, _ in iter_recorded(record, "")}
+    assert "/cam_a/gldt/tracks" in topics and not any(t.startswith("/gldt") for t in topics), topics
+    graph = recorded_track_rows(record)
+    offline, _ = offline_rows(bag)
+    assert graph.shape == offline.shape and len(graph) > 0
+    np.testing.assert_array_equal(graph[np.lexsort((graph[:, 1], graph[:, 0]))][:, :2], offline[np.lexsort((offline[:, 1], offline[:, 0]))][:, :2])

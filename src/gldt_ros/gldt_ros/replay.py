@@ -84,7 +84,8 @@ class GraphDriver(Node):
     def _publisher(self, topic: str, msgtype: str):
         if topic not in self._bag_publishers:
             reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
-            self._bag_publishers[topic] = self.create_publisher(message_class(msgtype), topic, reliable)
+            # Relative, so a namespaced graph (one per camera) gets the bag inside its namespace.
+            self._bag_publishers[topic] = self.create_publisher(message_class(msgtype), topic.lstrip("/"), reliable)
         return self._bag_publishers[topic]
 
     def _prepare_publishers(self, stop: threading.Event, timeout_s: float = 10.0) -> None:
