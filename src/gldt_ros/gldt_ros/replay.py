@@ -38,6 +38,8 @@ class GraphDriver(Node):
         super().__init__("gldt_pipeline")
         self.args = args
         self._answered: set[int] = set()
+        self._published_at: dict[int, float] = {}
+        self.latencies_s: list[float] = []
         self._answered_cv = threading.Condition()
         self.tracks_received = 0
         self.last_track_count = 0
@@ -54,9 +56,14 @@ class GraphDriver(Node):
             if self.recorder is not None:
                 self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
             if topic == topics.TRACKS:
+                received = time.monotonic()
                 with self._answered_cv:
                     self.tracks_received += 1
-                    self._answered.add(header_stamp_ns(raw))
+                    stamp = header_stamp_ns(raw)
+                    self._answered.add(stamp)
+                    published = self._published_at.pop(stamp, None)
+                    if published is not None:
+                        self.latencies_s.append(received - published)
                     self._answered_cv.notify_all()
 
         return callback
@@ -137,6 +144,9 @@ class GraphDriver(Node):
                     delay = due - time.monotonic()
                     if delay > 0:
                         stop.wait(delay)
+                if message.msgtype in IMAGE_TYPES_SET:
+                    with self._answered_cv:
+                        self._published_at[header_stamp_ns(message.data)] = time.monotonic()
                 publisher.publish(message.data)
                 if message.msgtype in IMAGE_TYPES_SET:
                     frames += 1
@@ -147,9 +157,16 @@ class GraphDriver(Node):
         if not self.args.lockstep:
             self._drain(frames, stop)
         elapsed = time.monotonic() - start_wall
+        self.frames_published = frames
+        latency = ""
+        if self.latencies_s:
+            import numpy as np
+
+            p50, p99 = np.percentile(np.asarray(self.latencies_s) * 1000.0, [50, 99])
+            latency = f", camera-to-tracks latency p50 {p50:.0f} ms p99 {p99:.0f} ms"
         return (
             f"pipeline: replayed {frames} frames in {elapsed:.1f} s ({frames / max(elapsed, 1e-9):.1f} fps), "
-            f"{self.tracks_received} track messages, {waited_out} frames without an answer"
+            f"{self.tracks_received} track messages, {waited_out} frames without an answer{latency}"
         )
 
     def _wait_answer(self, stamp_ns: int, stop: threading.Event, dead: Callable[[], list[str]]) -> bool:

@@ -1,0 +1,67 @@
+"""ROS graph benchmark: throughput, camera-to-tracks latency and transport overhead.
+
+Usage: ``python -m gldt_ros.bench_graph [--bag BAG] [--rate 1.0]`` (with the workspace on the
+paths, e.g. ``scripts/with_ros_env.sh python -m gldt_ros.bench_graph``).
+
+Three runs on the same bag, in one invocation so the machine's load is shared alike:
+1. offline: ``GLDTPipeline`` in this process - the core's own time per frame (the peer);
+2. lockstep replay through the five processes - time per frame, whose excess over (1) is what
+   the ROS transport and process hops cost;
+3. free-running replay at the bag's rate x ``--rate`` - throughput, p50/p99 latency from
+   publishing a camera frame to receiving its ``/gldt/tracks``, and frames left unanswered.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+
+def offline_seconds_per_frame(bag: Path) -> tuple[float, int]:
+    from gldt_core.data import open_source
+    from gldt_core.pipeline.pipeline import GLDTPipeline
+    from gldt_core.pipeline.runner import run_frames
+
+    frames = list(open_source(str(bag)))  # decode outside the timing, as the graph's player does not decode
+    start = time.perf_counter()
+    result = run_frames(GLDTPipeline(), frames)
+    return (time.perf_counter() - start) / max(result.frames, 1), result.frames
+
+
+def graph_run(bag: Path, extra: list[str]) -> str:
+    pipeline = shutil.which("pipeline")
+    if pipeline is None:
+        raise SystemExit("bench_graph: `pipeline` not on PATH; run through scripts/with_ros_env.sh")
+    completed = subprocess.run([pipeline, "--bag", str(bag), *extra], capture_output=True, text=True, timeout=1800)
+    summary = [line for line in completed.stdout.splitlines() if "replayed" in line]
+    if completed.returncode != 0 or not summary:
+        raise SystemExit(f"bench_graph: pipeline failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
+    return summary[-1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m gldt_ros.bench_graph", description=__doc__.split("\n\n")[0])
+    default_bag = Path(__file__).resolve().parents[3] / "bags" / "synth_1080p_multi_uav"
+    parser.add_argument("--bag", type=Path, default=default_bag)
+    parser.add_argument("--rate", type=float, default=1.0)
+    args = parser.parse_args(argv)
+
+    offline_s, frames = offline_seconds_per_frame(args.bag)
+    lockstep = graph_run(args.bag, ["--lockstep"])
+    lockstep_s = float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames
+    free = graph_run(args.bag, ["--rate", str(args.rate)])
+    print(f"bench_graph: {args.bag.name}, {frames} frames")
+    print(f"  offline core pipeline : {1000 * offline_s:7.1f} ms/frame ({1 / offline_s:5.1f} fps)")
+    print(f"  graph, lockstep       : {1000 * lockstep_s:7.1f} ms/frame ({1 / lockstep_s:5.1f} fps)")
+    print(f"  ROS overhead          : {100 * (lockstep_s / offline_s - 1):+7.1f} % of the core's time per frame (goal <= 20 %)")
+    print(f"  free-running x{args.rate:g}    : {free.split('pipeline: ', 1)[1]}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
