@@ -42,7 +42,6 @@ class GraphDriver(Node):
         self.latencies_s: list[float] = []
         self._answered_cv = threading.Condition()
         self.tracks_received = 0
-        self.last_track_count = 0
         self.recorder = McapRecorder(args.record) if args.record else None
         for topic, msgtype in RECORDED_TOPICS.items():
             self.create_subscription(
@@ -60,7 +59,8 @@ class GraphDriver(Node):
                 with self._answered_cv:
                     self.tracks_received += 1
                     stamp = header_stamp_ns(raw)
-                    self._answered.add(stamp)
+                    if self.args.lockstep:  # only lockstep waits on answers; free runs must not grow a set
+                        self._answered.add(stamp)
                     published = self._published_at.pop(stamp, None)
                     if published is not None:
                         self.latencies_s.append(received - published)
@@ -147,6 +147,8 @@ class GraphDriver(Node):
                 if message.msgtype in IMAGE_TYPES_SET:
                     with self._answered_cv:
                         self._published_at[header_stamp_ns(message.data)] = time.monotonic()
+                        if len(self._published_at) > 1000:  # frames the graph skipped: forget the oldest
+                            del self._published_at[next(iter(self._published_at))]
                 publisher.publish(message.data)
                 if message.msgtype in IMAGE_TYPES_SET:
                     frames += 1
