@@ -11,6 +11,7 @@ frame's detections have been reported, so the decision never depends on message 
 
 from __future__ import annotations
 
+import time
 from collections import deque
 from typing import Any
 
@@ -61,8 +62,6 @@ class ModeSchedulerNode(GldtNode):
 
     def _check_report_timeout(self) -> None:
         """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph."""
-        import time
-
         if self._awaiting_report is not None and time.monotonic() - self._awaiting_since > float(self.param("report_timeout")):
             self.warn_once("report-timeout", f"no detections for LOCAL frame {self._awaiting_report}; planning on without them")
             self._awaiting_report = None
@@ -91,8 +90,6 @@ class ModeSchedulerNode(GldtNode):
             del self._plans[old]
         local = plan.mode.name == "LOCAL"
         if local:
-            import time
-
             self._awaiting_report = index
             self._awaiting_since = time.monotonic()
         state = self.scheduler.state
