@@ -118,8 +118,15 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) ->
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, FileNotFoundError) as error:
+        if node is not None:
+            raise  # callbacks are guarded; anything else escaping spin is a bug worth a traceback
         print(f"[gldt] cannot start: {error}", flush=True)
         return 1
+    except RuntimeError:
+        # SIGINT shuts the context down while the executor may be inside take_message, which
+        # then fails to convert the half-taken message; that is a stop, not a crash.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()
