@@ -17,6 +17,21 @@ os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 100)
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 
 
+_next_domain = [int(os.environ["ROS_DOMAIN_ID"])]
+
+
+def isolated_ros_env() -> dict[str, str]:
+    """Environment for a ROS subprocess with a DDS domain of its own.
+
+    Each graph a test starts gets a fresh domain, so a straggler of an earlier test (a killed
+    node's participant that DDS still remembers) can never talk to it.
+    """
+    _next_domain[0] = _next_domain[0] % 100 + 1
+    env = dict(os.environ)
+    env["ROS_DOMAIN_ID"] = str(_next_domain[0])
+    return env
+
+
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     """The repository root."""

@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import isolated_ros_env
 
 yaml = pytest.importorskip("yaml")
 
@@ -70,7 +71,7 @@ def test_readme_parameter_table_is_generated_from_schema() -> None:
 def test_pipeline_starts_and_stops_cleanly() -> None:
     pipeline = INSTALL / "lib" / "gldt_ros" / "pipeline"
     process = subprocess.Popen(
-        [str(pipeline)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True
+        [str(pipeline)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, env=isolated_ros_env()
     )
     lines: list[str] = []
     try:

@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import isolated_ros_env
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
@@ -159,7 +160,7 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
     record = tmp_path / "graph.mcap"
     process = subprocess.Popen(
         [str(PIPELINE), "--bag", str(bag), "--lockstep", "--frame-timeout", "0.5", "--record", str(record)],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True, env=isolated_ros_env(),
     )
     lines: list[tuple[float, str]] = []
     killed = False

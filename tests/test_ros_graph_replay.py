@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import isolated_ros_env
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
@@ -56,7 +57,7 @@ def replay(request, tmp_path_factory):
     record = tmp_path_factory.mktemp(bag.name) / "graph.mcap"
     completed = subprocess.run(
         [str(PIPELINE), "--bag", str(bag), "--lockstep", "--record", str(record)],
-        capture_output=True, text=True, timeout=600,
+        capture_output=True, text=True, timeout=600, env=isolated_ros_env(),
     )
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     from gldt_core.io.recording import iter_recorded, recorded_track_rows
@@ -123,7 +124,7 @@ def test_a_namespaced_graph_serves_its_own_camera(tmp_path: Path) -> None:
     record = tmp_path / "cam_a.mcap"
     completed = subprocess.run(
         [str(PIPELINE), "--bag", str(bag), "--lockstep", "--namespace", "cam_a", "--record", str(record)],
-        capture_output=True, text=True, timeout=600,
+        capture_output=True, text=True, timeout=600, env=isolated_ros_env(),
     )
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
     topics = {topic for topic, _, _ in iter_recorded(record, "")}

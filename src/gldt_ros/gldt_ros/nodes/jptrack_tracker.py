@@ -26,6 +26,10 @@ from gldt_ros.planner import fill_planner_fields, markers_for
 from gldt_ros.node_base import GldtNode, run_node
 
 
+#: A message this much older than the last processed one is late, not a restarted stream [s].
+STALE_WINDOW_S = 1.0
+
+
 def _stamp_seconds(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
@@ -65,12 +69,7 @@ class TrackerNode(GldtNode):
             self.tracker = build_tracker(self.config, size)
             self._frame_size = size
             self._last_stamp = None
-        if self._last_stamp is not None and t <= self._last_stamp:
-            self.get_logger().warning(
-                f"frame {tick.frame_index}: time went backwards ({self._last_stamp:.3f} s -> {t:.3f} s); tracker reset"
-            )
-            self.tracker.reset()
-            self._last_stamp = None
+        self._check_time(t, tick.frame_index)
         predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
         by_id = {int(track.track_id): track for track in self.tracker.tracks}
         messages = []
@@ -83,13 +82,27 @@ class TrackerNode(GldtNode):
             TrackPredictions(header=tick.header, frame_index=tick.frame_index, width=tick.width, height=tick.height, tracks=messages)
         )
 
+    def _check_time(self, t: float, frame_index: int) -> None:
+        """Handle a stamp at or before the last one processed.
+
+        A little older (within ``STALE_WINDOW_S``): a late message, e.g. from the other detector
+        around a node restart - dropped (ValueError: logged and counted), never allowed to move
+        the tracker back in time. Much older: the stream restarted (a bag replayed again) - the
+        tracker is reset and goes on.
+        """
+        if self._last_stamp is None or t > self._last_stamp:
+            return
+        if self._last_stamp - t < STALE_WINDOW_S:
+            raise ValueError(f"frame {frame_index} stamped {t:.3f} s arrived after {self._last_stamp:.3f} s; stale, dropped")
+        self.get_logger().warning(
+            f"frame {frame_index}: time went backwards ({self._last_stamp:.3f} s -> {t:.3f} s); tracker reset"
+        )
+        self.tracker.reset()
+        self._last_stamp = None
+
     def on_detections(self, message: DetectionArray) -> None:
         t = _stamp_seconds(message.header.stamp)
-        if self._last_stamp is not None and t <= self._last_stamp:
-            self.get_logger().warning(
-                f"frame {message.frame_index}: time went backwards ({self._last_stamp:.3f} s -> {t:.3f} s); tracker reset"
-            )
-            self.tracker.reset()
+        self._check_time(t, message.frame_index)
         self._last_stamp = t
         detections = detection_array_to_tracker_input(message)
         if self._takes_rois:
