@@ -127,6 +127,7 @@ def test_a_namespaced_graph_serves_its_own_camera(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=600, env=isolated_ros_env(),
     )
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
+    assert "0 frames without an answer" in completed.stdout, completed.stdout[-3000:] + completed.stderr[-3000:]
     topics = {topic for topic, _, _ in iter_recorded(record, "")}
     assert "/cam_a/gldt/tracks" in topics and not any(t.startswith("/gldt") for t in topics), topics
     graph = recorded_track_rows(record)

@@ -43,7 +43,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: config/gldt.yaml)")
     parser.add_argument("--namespace", default="", help="namespace of the graph (one per camera)")
     parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
-    parser.add_argument("--frame-timeout", type=float, default=10.0, help="lockstep: seconds to wait for one frame's tracks")
+    parser.add_argument("--frame-timeout", type=float, default=20.0, help="lockstep: seconds to wait for one frame's tracks")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all nodes to come up")
     parser.add_argument("--max-restarts", type=int, default=5, help="restarts of a node that dies after start-up (0: stop the graph instead)")
     args = parser.parse_args(argv)

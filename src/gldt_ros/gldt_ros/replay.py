@@ -113,7 +113,10 @@ class GraphDriver(Node):
         deadline = time.monotonic() + timeout_s
         while image_publishers and not stop.is_set() and time.monotonic() < deadline:
             if any(p.get_subscription_count() > 0 for p in image_publishers):
-                time.sleep(0.2)  # let the remaining endpoints of the graph match too
+                # The nodes' own publishers match their peers' subscriptions a little after we
+                # see those subscriptions; a lost first tick would cost a lockstep replay its
+                # determinism, so give discovery a moment to settle.
+                time.sleep(1.0 if self.args.lockstep else 0.2)
                 return
             time.sleep(0.05)
         if image_publishers:
