@@ -46,7 +46,9 @@ def graph_run(bag: Path, extra: list[str]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gldt_ros.bench_graph", description=__doc__.split("\n\n")[0])
-    default_bag = Path(__file__).resolve().parents[3] / "bags" / "synth_1080p_multi_uav"
+    from gldt_core.paths import REPO_ROOT
+
+    default_bag = REPO_ROOT / "bags" / "synth_1080p_multi_uav"
     parser.add_argument("--bag", type=Path, default=default_bag)
     parser.add_argument("--rate", type=float, default=1.0)
     args = parser.parse_args(argv)
