@@ -15,6 +15,11 @@ from sensor_msgs.msg import Image, RegionOfInterest
 from gldt_core.imaging import decode_compressed_image, decode_raw_image, encode_bgr8
 
 
+def stamp_seconds(stamp: Any) -> float:
+    """``builtin_interfaces/Time`` -> seconds as a float (the core's time base)."""
+    return stamp.sec + stamp.nanosec * 1e-9
+
+
 def image_to_bgr(message: Any) -> np.ndarray:
     """Decode ``sensor_msgs/Image`` or ``CompressedImage`` into a BGR array (``ImageDecodeError`` if not)."""
     if hasattr(message, "encoding"):

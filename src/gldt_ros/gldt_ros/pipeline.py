@@ -57,15 +57,22 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+#: Parameter overrides a lockstep replay needs: the scheduler waits for LOCAL reports, and the
+#: buffer receives the player's reliable camera stream without drops.
+LOCKSTEP_OVERRIDES = {"mode_scheduler": ["-p", "lockstep:=true"], "frame_pair_buffer": ["-p", "camera_qos:=reliable"]}
+
+
+def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
+    """``--ros-args`` of one node: the parameter file plus the lockstep overrides it needs."""
+    ros_args = ["--ros-args", "--params-file", str(args.params)]
+    return ros_args + (LOCKSTEP_OVERRIDES.get(name, []) if args.lockstep else [])
+
+
 def node_command(name: str, args: argparse.Namespace) -> list[str]:
     """Command line of one node process."""
-    command = [sys.executable, "-m", f"gldt_ros.nodes.{name}", "--ros-args", "--params-file", str(args.params)]
+    command = [sys.executable, "-m", f"gldt_ros.nodes.{name}", *node_ros_args(name, args)]
     if args.namespace:
         command += ["-r", f"__ns:=/{args.namespace.strip('/')}"]
-    if args.lockstep and name == "mode_scheduler":
-        command += ["-p", "lockstep:=true"]
-    if args.lockstep and name == "frame_pair_buffer":
-        command += ["-p", "camera_qos:=reliable"]
     return command
 
 
@@ -214,17 +221,7 @@ def _create_in_process_nodes(args: argparse.Namespace) -> list:
     """Instantiate every node in this process with the parameter file applied."""
     import importlib
 
-    nodes = []
-    overrides = ["--ros-args", "--params-file", str(args.params)]
-    for name in NODES:
-        module = importlib.import_module(f"gldt_ros.nodes.{name}")
-        extra = []
-        if args.lockstep and name == "mode_scheduler":
-            extra = ["-p", "lockstep:=true"]
-        if args.lockstep and name == "frame_pair_buffer":
-            extra = ["-p", "camera_qos:=reliable"]
-        nodes.append(module.create_node(cli_args=overrides + extra))
-    return nodes
+    return [importlib.import_module(f"gldt_ros.nodes.{name}").create_node(cli_args=node_ros_args(name, args)) for name in NODES]
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from gldt_core.pipeline.pipeline import accepts_keyword, build_tracker
 from gldt_core.pipeline.steps import stable_predictions
 
 from gldt_ros import qos, topics
-from gldt_ros.convert import detection_array_to_tracker_input, msgs_to_rois, track_to_msg
+from gldt_ros.convert import detection_array_to_tracker_input, msgs_to_rois, stamp_seconds, track_to_msg
 from gldt_ros.planner import fill_planner_fields, markers_for
 from gldt_ros.node_base import GldtNode, run_node
 
@@ -30,8 +30,6 @@ from gldt_ros.node_base import GldtNode, run_node
 STALE_WINDOW_S = 1.0
 
 
-def _stamp_seconds(stamp: Any) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
 
 
 class TrackerNode(GldtNode):
@@ -60,7 +58,7 @@ class TrackerNode(GldtNode):
             raise ValueError(f"camera_info ignored, bearings invalid until a good one arrives: {error}") from None
 
     def on_tick(self, tick: FrameTick) -> None:
-        t = _stamp_seconds(tick.header.stamp)
+        t = stamp_seconds(tick.header.stamp)
         size = (int(tick.width), int(tick.height))
         if size != self._frame_size:
             # Distance costs are normalised by the image size, as GLDTPipeline does per stream.
@@ -101,7 +99,7 @@ class TrackerNode(GldtNode):
         self._last_stamp = None
 
     def on_detections(self, message: DetectionArray) -> None:
-        t = _stamp_seconds(message.header.stamp)
+        t = stamp_seconds(message.header.stamp)
         self._check_time(t, message.frame_index)
         self._last_stamp = t
         detections = detection_array_to_tracker_input(message)

@@ -16,19 +16,16 @@ from collections import deque
 from typing import Any
 
 import numpy as np
-from builtin_interfaces.msg import Time
 from gldt_msgs.msg import DetectionArray, RoiArray, SchedulerState, TrackPredictions
 
 from gldt_core.pipeline.roi import RoiParams
 from gldt_core.pipeline.scheduler import ModeScheduler, SchedulerConfig
 
 from gldt_ros import qos, topics
-from gldt_ros.convert import rois_to_msgs
+from gldt_ros.convert import rois_to_msgs, stamp_seconds
 from gldt_ros.node_base import GldtNode, run_node
 
 
-def _stamp_seconds(stamp: Time) -> float:
-    return stamp.sec + stamp.nanosec * 1e-9
 
 
 class ModeSchedulerNode(GldtNode):
@@ -72,7 +69,7 @@ class ModeSchedulerNode(GldtNode):
             self._plan(self._queue.popleft())
 
     def _plan(self, message: TrackPredictions) -> None:
-        stamp = _stamp_seconds(message.header.stamp)
+        stamp = stamp_seconds(message.header.stamp)
         size = (int(message.width), int(message.height))
         if (self._size is not None and size != self._size) or (self._last_stamp is not None and stamp <= self._last_stamp):
             self.get_logger().warning(f"frame {message.frame_index}: size change or time going backwards; scheduler reset")
