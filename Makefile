@@ -32,6 +32,13 @@ test-all: setup
 bench-peers: setup
 	@.venv/bin/python -m pip install -q --no-deps boxmot==25.0.0 && .venv/bin/python -m pip install -q lapx==0.11.1 rich
 
+# Soak of the node graph (issue #9): loop the real sample bag at 30 Hz for SOAK_MINUTES, report
+# each node's RSS growth, track-table size and dropped frames (a benchmark, minutes long).
+SOAK_MINUTES ?= 10
+.PHONY: soak-graph
+soak-graph: setup
+	@bash scripts/with_ros_env.sh $(VENV_PY) -m gldt_ros.soak_graph --minutes $(SOAK_MINUTES) --json out/soak_graph.json
+
 docs: setup
 	@$(VENV_PY) scripts/generate_param_docs.py
 

@@ -342,3 +342,25 @@ def test_pipeline_on_black_and_saturated_frames_and_a_long_silence(caplog: pytes
     n_miss = pipeline.config.scheduler.n_miss
     assert all(m is Mode.GLOBAL for m in modes[n_miss + 2:]), "LD kept searching empty windows through the silence"
     assert len(out) >= 2, "targets were not tracked again after the silence"
+
+
+def test_stamp_order_drops_late_messages_and_resets_only_on_a_real_restart() -> None:
+    """The tracker node's policy: one very late message (overloaded graph) never resets the tracks;
+    a stream that went back in time for several messages in a row did restart."""
+    from gldt_core.pipeline.stamps import StaleMessage, StampOrder
+
+    order = StampOrder(stale_window_s=1.0, restart_after=3)
+    assert order.check(10.0, 0) is False
+    order.accept(10.0)
+    with pytest.raises(StaleMessage, match="frame 1 stamped 9.900 s"):
+        order.check(9.9, 1)  # late within the window
+    for _ in range(2):
+        with pytest.raises(StaleMessage, match="in a row"):
+            order.check(5.0, 2)  # far behind, but maybe just very late
+    assert order.check(10.1, 3) is False  # something newer: the run of old stamps is broken
+    order.accept(10.1)
+    for _ in range(2):
+        with pytest.raises(StaleMessage):
+            order.check(0.5, 4)
+    assert order.check(0.5, 4) is True  # third in a row: the stream restarted
+    assert order.last_stamp is None and order.check(0.6, 5) is False

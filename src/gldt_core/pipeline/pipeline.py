@@ -183,6 +183,9 @@ class GLDTPipeline:
         self._invalid_detections = 0
         self._size: tuple[int, int] | None = None
         self._previous: np.ndarray | None = None
+        # Letterboxed network input of the previous frame when that frame was a GD frame (see
+        # GlobalDetector.detect_pair); None after LD frames and resets.
+        self._previous_input: np.ndarray | None = None
         self._last_t: float | None = None
         self._period: float | None = None
         self._last_plan: FramePlan | None = None
@@ -220,6 +223,7 @@ class GLDTPipeline:
         self.tracker.reset()
         self.scheduler.reset()
         self._previous = None
+        self._previous_input = None
         self._size = None
         self._last_t = None
         self._period = None
@@ -261,6 +265,16 @@ class GLDTPipeline:
             LOG.debug("frame %d: dropped %d invalid detection(s)", self._frame_index, invalid)
         return raw
 
+    def _detect_global(self, previous: np.ndarray, frame: np.ndarray) -> np.ndarray:
+        """The global detector on ``(previous, frame)``, reusing the previous GD frame's letterboxed
+        input when the detector offers ``detect_pair`` (the shipped one does; test doubles need not)."""
+        detect_pair = getattr(self.global_detector, "detect_pair", None)
+        if detect_pair is None:
+            return self.global_detector.detect(previous, frame)
+        previous_input, self._previous_input = self._previous_input, None  # stale if detect_pair raises
+        detections, self._previous_input = detect_pair(previous, frame, previous_input)
+        return detections
+
     def process(self, frame: np.ndarray, t: float) -> np.ndarray:
         """Run one frame (HxWx3 uint8 BGR, ``t`` seconds); returns ``(M, 6)`` ``[x1,y1,x2,y2,id,score]``."""
         timer = self.timer
@@ -276,12 +290,13 @@ class GLDTPipeline:
 
         if plan.mode is Mode.GLOBAL:
             with timer.stage("gd"):
-                raw = self._count_invalid(self.global_detector.detect(previous, frame), 6)
+                raw = self._count_invalid(self._detect_global(previous, frame), 6)
                 raw = filter_classes(raw, 6, self.config.detector.classes)
             detections = raw[:, :5]
             detection_rois = None
             self._global_frames += 1
         else:
+            self._previous_input = None
             with timer.stage("ld"):
                 raw = self._count_invalid(self.local_detector.detect_rois(frame, plan.rois), 7)
                 raw = merge_local_detections(raw, self.config.detector.classes, self.config.detector.nms_iou)

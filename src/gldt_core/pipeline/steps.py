@@ -14,7 +14,9 @@ import numpy as np
 from gldt_core.detect.postprocess import nms
 
 
-def _state_name(state: Any) -> str:
+def state_name(state: Any) -> str:
+    """Upper-case name of a track state (an enum member or a string): trackers that are not ours
+    may use their own enum, so states are compared by name."""
     return str(getattr(state, "name", state)).upper()
 
 
@@ -30,7 +32,7 @@ def stable_predictions(tracker: Any, t: float, keep_lost_frames: int) -> np.ndar
         return predictions
     wanted = set()
     for track in tracks:
-        state = _state_name(getattr(track, "state", ""))
+        state = state_name(getattr(track, "state", ""))
         if state in ("CONFIRMED", "RECOVERED") or (
             state == "LOST" and int(getattr(track, "frames_since_update", 0)) <= keep_lost_frames
         ):

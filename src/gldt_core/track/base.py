@@ -20,11 +20,17 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from gldt_core.track.geometry import iou_xyxy, validate_detections, validate_time
+from gldt_core.track.assignment import linear_sum_assignment
+from gldt_core.track.geometry import iou_pairs_above, iou_xyxy, validate_detections, validate_time
 from gldt_core.track.jcma import FORBIDDEN
-from gldt_core.track.state import Track, TrackState, advance_tracks, update_tracks
+from gldt_core.track.state import (
+    Track,
+    TrackState,
+    advance_tracks,
+    boxes_xyxy,
+    update_tracks,
+)
 
 OUTPUT_STATES = (TrackState.CONFIRMED, TrackState.RECOVERED)
 
@@ -127,22 +133,23 @@ class MultiStageTracker:
 
         def apply(tracks: Sequence[Track], det_idx: np.ndarray, pairs: list[tuple[int, int]],
                   new_state: TrackState | None) -> tuple[list[Track], np.ndarray]:
-            used_t, used_d = set(), set()
+            if not pairs:  # nothing matched: everything stays (the common case for stages 2-4)
+                return list(tracks), det_idx
             matched = [tracks[r] for r, _ in pairs]
             rows = [int(det_idx[c]) for _, c in pairs]
             update_tracks(matched, dets[rows, :4], dets[rows, 4], t, [rel[d] for d in rows])
-            for r, c in pairs:
-                tr = tracks[r]
+            used_t = set()
+            keep_d = np.ones(len(det_idx), dtype=bool)
+            for tr, (r, c) in zip(matched, pairs):
                 if new_state is not None:
                     tr.state = new_state
                 elif tr.state in (TrackState.LOST, TrackState.RECOVERED):
                     tr.state = TrackState.CONFIRMED
                 updated.add(id(tr))
                 used_t.add(r)
-                used_d.add(c)
+                keep_d[c] = False
             rest_t = [tr for i, tr in enumerate(tracks) if i not in used_t]
-            rest_d = np.asarray([d for i, d in enumerate(det_idx) if i not in used_d], dtype=np.int64)
-            return rest_t, rest_d
+            return rest_t, np.asarray(det_idx, dtype=np.int64)[keep_d]
 
         # Stage 1: high-score detections vs active and recently lost tracks.
         pool = active + [tr for tr in lost if t - tr.last_update_t <= self._window_s]
@@ -186,12 +193,12 @@ class MultiStageTracker:
             kept.append(tr)
         self._tracks = self._remove_duplicates(kept)
 
-        out = [
-            [*tr.box_xyxy, float(tr.track_id), tr.score]
-            for tr in self._tracks
-            if tr.state in OUTPUT_STATES and id(tr) in updated
-        ]
-        return np.asarray(out, dtype=np.float64).reshape(-1, 6)
+        shown = [tr for tr in self._tracks if tr.state in OUTPUT_STATES and id(tr) in updated]
+        out = np.empty((len(shown), 6))
+        out[:, :4] = boxes_xyxy(shown)
+        out[:, 4] = [float(tr.track_id) for tr in shown]
+        out[:, 5] = [tr.score for tr in shown]
+        return out
 
     # --- hooks ------------------------------------------------------------------------------
     def _pair_cost(
@@ -216,10 +223,9 @@ class MultiStageTracker:
             return []
         cx = (dets[:, 0] + dets[:, 2]) * 0.5
         cy = (dets[:, 1] + dets[:, 3]) * 0.5
-        if rois is None:
-            x0 = y0 = np.zeros(len(dets))
-            w = np.full(len(dets), self._image_size[0])
-            h = np.full(len(dets), self._image_size[1])
+        if rois is None:  # the image: origin 0, scalar sizes (same values, fewer arrays)
+            x0 = y0 = 0.0
+            w, h = self._image_size
         else:
             r = np.asarray(rois, dtype=np.float64)
             if r.shape != (len(dets), 4) or not np.all(np.isfinite(r)):
@@ -238,9 +244,8 @@ class MultiStageTracker:
         lost = [tr for tr in tracks if tr.state is TrackState.LOST]
         if not active or not lost:
             return tracks
-        iou = iou_xyxy(np.array([tr.box_xyxy for tr in active]), np.array([tr.box_xyxy for tr in lost]))
         drop = set()
-        for i, j in zip(*np.nonzero(iou > 0.85)):
+        for i, j in iou_pairs_above(boxes_xyxy(active), boxes_xyxy(lost), 0.85):
             a, b = active[i], lost[j]
             drop.add(id(b) if a.age_s >= b.age_s else id(a))
         return [tr for tr in tracks if id(tr) not in drop]
@@ -252,7 +257,7 @@ def iou_pair_cost(
     """ByteTrack's cost: ``1 - IoU`` (times the detection score when fused), allowed if <= thresh."""
     if len(tracks) == 0 or len(det_idx) == 0:
         return np.zeros((len(tracks), len(det_idx))), np.zeros((len(tracks), len(det_idx)), dtype=bool)
-    boxes = np.array([tr.box_xyxy for tr in tracks])
+    boxes = boxes_xyxy(list(tracks))
     sub = dets[det_idx]
     iou = iou_xyxy(boxes, sub[:, :4])
     cost = 1.0 - iou * sub[None, :, 4] if fuse_score else 1.0 - iou

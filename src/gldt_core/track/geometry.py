@@ -11,15 +11,43 @@ def iou_xyxy(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """IoU matrix ``(len(a), len(b))`` of ``[x1, y1, x2, y2]`` boxes."""
     if len(a) == 0 or len(b) == 0:
         return np.zeros((len(a), len(b)))
-    ix1 = np.maximum(a[:, None, 0], b[None, :, 0])
-    iy1 = np.maximum(a[:, None, 1], b[None, :, 1])
-    ix2 = np.minimum(a[:, None, 2], b[None, :, 2])
-    iy2 = np.minimum(a[:, None, 3], b[None, :, 3])
-    inter = np.clip(ix2 - ix1, 0, None) * np.clip(iy2 - iy1, 0, None)
+    # np.maximum(x, 0) rather than np.clip: same values, a fraction of clip's call overhead (these
+    # matrices hold a few elements, so call overhead, not arithmetic, is the cost).
+    ax1, ay1, ax2, ay2 = a[:, 0, None], a[:, 1, None], a[:, 2, None], a[:, 3, None]
+    iw = np.minimum(ax2, b[:, 2]) - np.maximum(ax1, b[:, 0])
+    ih = np.minimum(ay2, b[:, 3]) - np.maximum(ay1, b[:, 1])
+    inter = np.maximum(iw, 0.0) * np.maximum(ih, 0.0)
     area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
     area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
     union = area_a[:, None] + area_b[None, :] - inter
     return np.where(union > 0, inter / np.maximum(union, 1e-12), 0.0)
+
+
+#: Up to this many box pairs, :func:`iou_pairs_above` loops in Python (cheaper than ~20 numpy calls).
+SCALAR_IOU_PAIRS = 64
+
+
+def iou_pairs_above(a: np.ndarray, b: np.ndarray, thresh: float) -> list[tuple[int, int]]:
+    """Index pairs ``(i, j)`` with ``IoU(a[i], b[j]) > thresh``, row-major order.
+
+    For a few pairs (duplicate removal at a handful of targets) the IoU is evaluated with Python
+    floats: the same IEEE operations in the same order as :func:`iou_xyxy`, so the same values and
+    decisions, without numpy's per-call overhead on 2x3 matrices.
+    """
+    if len(a) * len(b) > SCALAR_IOU_PAIRS:
+        return [(int(i), int(j)) for i, j in zip(*np.nonzero(iou_xyxy(a, b) > thresh))]
+    out = []
+    b_rows = [(x1, y1, x2, y2, (x2 - x1) * (y2 - y1)) for x1, y1, x2, y2 in np.asarray(b).tolist()]
+    for i, (ax1, ay1, ax2, ay2) in enumerate(np.asarray(a).tolist()):
+        area_a = (ax2 - ax1) * (ay2 - ay1)
+        for j, (bx1, by1, bx2, by2, area_b) in enumerate(b_rows):
+            iw = min(ax2, bx2) - max(ax1, bx1)
+            ih = min(ay2, by2) - max(ay1, by1)
+            inter = max(iw, 0.0) * max(ih, 0.0)
+            union = area_a + area_b - inter
+            if union > 0 and inter / max(union, 1e-12) > thresh:
+                out.append((i, j))
+    return out
 
 
 def xyxy_to_cxcywh(boxes: np.ndarray) -> np.ndarray:

@@ -96,7 +96,25 @@ def jcma_cost(
     scale = (wh_i.sum(1)[:, None] + wh_j.sum(1)[None, :]) / 4.0 * 2.0
     c_dist = np.minimum(1.0, dist / np.maximum(scale, 1e-9))
 
-    # Motion consistency (eqs. 13-14), velocities in px per reference frame.
+    c_motion = _motion_cost(motion, cj, weights)
+    c_rel = relational_cost(ci, cj, context_c, context_index)
+
+    # Summed in eq. 9's order, so the result is bit-identical to the one-expression form; a pool
+    # without motion history adds C_motion = 0 (x + 0.0 == x), i.e. nothing.
+    cost = weights.w_iou * c_iou + weights.w_dist * c_dist
+    if c_motion is not None:
+        cost += weights.w_motion * c_motion
+    cost += weights.w_rel * c_rel
+    gate = ~((c_iou >= 1.0) & (c_dist >= 1.0))
+    return cost, gate
+
+
+def _motion_cost(motion: TrackMotion, cj: np.ndarray, weights: JcmaWeights) -> np.ndarray | None:
+    """C_motion (eqs. 13-14), velocities in px per reference frame; ``None`` when no track of the
+    pool has a motion history (then every pair's C_motion is 0: tentative tracks, first frames)."""
+    has = motion.has_motion
+    if not has.any():
+        return None
     v_exp = (cj[None, :, :] - motion.last_obs_c[:, None, :]) / motion.elapsed_ref[:, None, None]
     speed_exp = np.hypot(v_exp[..., 0], v_exp[..., 1])
     speed_avg = np.hypot(motion.v_avg[:, 0], motion.v_avg[:, 1])
@@ -113,14 +131,9 @@ def jcma_cost(
     accel = (v_exp - motion.v_last[:, None, :]) / motion.elapsed_ref[:, None, None]
     c_acc = np.minimum(1.0, np.hypot(accel[..., 0], accel[..., 1]) / weights.accel_scale)
     c_motion = weights.b_speed * c_speed + weights.b_direction * c_dir + weights.b_acceleration * c_acc
-    c_motion[~motion.has_motion] = 0.0
-
-    c_rel = relational_cost(ci, cj, context_c, context_index)
-
-    cost = (weights.w_iou * c_iou + weights.w_dist * c_dist + weights.w_motion * c_motion
-            + weights.w_rel * c_rel)
-    gate = ~((c_iou >= 1.0) & (c_dist >= 1.0))
-    return cost, gate
+    if not has.all():
+        c_motion[~has] = 0.0
+    return c_motion
 
 
 def relational_cost(
@@ -142,11 +155,16 @@ def relational_cost(
     b_unit = np.where(nb[..., None] > 1e-9, b / np.maximum(nb, 1e-9)[..., None], 0.0)
     mask = np.ones((n_t, n_k))
     valid = context_index >= 0
-    mask[np.flatnonzero(valid), context_index[valid]] = 0.0
+    if valid.all():
+        mask[np.arange(n_t), context_index] = 0.0
+    else:
+        mask[np.flatnonzero(valid), context_index[valid]] = 0.0
     a_unit *= mask[..., None]
     total = a_unit.reshape(n_t, 2 * n_k) @ b_unit.transpose(0, 2, 1).reshape(2 * n_k, n_d)
     counts = mask.sum(1)
-    out = np.zeros((n_t, n_d))
     has = counts > 0
+    if has.all():
+        return 1.0 - total / counts[:, None]
+    out = np.zeros((n_t, n_d))
     out[has] = 1.0 - total[has] / counts[has, None]
     return out

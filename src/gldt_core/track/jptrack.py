@@ -32,8 +32,8 @@ import numpy as np
 
 from gldt_core.track.base import MultiStageTracker, assign, iou_pair_cost
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
-from gldt_core.track.pmr import c_time, fit_pmr, p_match
-from gldt_core.track.state import Track, TrackState
+from gldt_core.track.pmr import c_time, fit_pmr, p_match_many
+from gldt_core.track.state import Track, TrackState, boxes_xyxy
 
 
 @dataclass(frozen=True)
@@ -121,20 +121,17 @@ class JPTrack(MultiStageTracker):
 
     def _motion(self, tracks: Sequence[Track], t: float) -> TrackMotion:
         ref = self.config.ref_fps
-        n = len(tracks)
-        pred = np.empty((n, 4))
-        last_c = np.empty((n, 2))
-        elapsed = np.empty(n)
-        v_avg = np.empty((n, 2))
-        v_last = np.empty((n, 2))
-        has = np.empty(n, dtype=bool)
-        for i, tr in enumerate(tracks):
-            pred[i] = tr.box_xyxy
-            last_c[i] = tr.last_obs_cxcy
-            elapsed[i] = max((t - tr.last_update_t) * ref, 1e-6)
-            v_avg[i], v_last[i] = self._velocities(tr)
-            has[i] = tr.hits >= 2
-        return TrackMotion(pred, last_c, elapsed, v_avg, v_last, has)
+        elapsed, v_avg, v_last, has = [], [], [], []
+        for tr in tracks:
+            elapsed.append(max((t - tr.last_update_t) * ref, 1e-6))
+            avg, last = self._velocities(tr)
+            v_avg.append(avg)
+            v_last.append(last)
+            has.append(tr.hits >= 2)
+        pred = boxes_xyxy(list(tracks))
+        last_c = np.array([tr.last_obs_cxcy for tr in tracks], dtype=np.float64)
+        return TrackMotion(pred, last_c, np.array(elapsed, dtype=np.float64), np.array(v_avg, dtype=np.float64),
+                           np.array(v_last, dtype=np.float64), np.array(has, dtype=bool))
 
     def _velocities(self, tr: Track) -> tuple[tuple[float, float], tuple[float, float]]:
         """Mean (over ``state.MOTION_WINDOW`` observations) and last filtered velocity, in px per
@@ -153,22 +150,30 @@ class JPTrack(MultiStageTracker):
         cand = np.concatenate([rest_high, rest_low]) if c.use_pmr and c.pmr_use_low else rest_high
         if not c.use_pmr or not lost or len(cand) == 0:
             return rest_high, rest_low
-        centres = (dets[cand, :2] + dets[cand, 2:4]) * 0.5
-        score = np.zeros((len(lost), len(cand)))
-        worth = self._worth_modelling(lost, centres, t)
         # Gaps shorter than pmr_min_lost_s are JCMA's job (the lost track is in its first-stage
         # pool every frame); modelling them would fit a mixture for every single missed frame.
-        worth &= np.array([t - tr.last_update_t >= c.pmr_min_lost_s - 1e-9 for tr in lost])
-        for i, tr in enumerate(lost):
-            if not worth[i]:
-                continue
+        long_lost = [i for i, tr in enumerate(lost) if t - tr.last_update_t >= c.pmr_min_lost_s - 1e-9]
+        if not long_lost and c.tau_t >= 0.0:
+            return rest_high, rest_low  # every score would be 0: nothing can pass the gate
+        centres = (dets[cand, :2] + dets[cand, 2:4]) * 0.5
+        score = np.zeros((len(lost), len(cand)))
+        rows = []
+        if long_lost:
+            worth = self._worth_modelling([lost[i] for i in long_lost], centres, t)
+            rows = [i for i, w in zip(long_lost, worth.tolist()) if w]
+        if not rows and c.tau_t >= 0.0:
+            return rest_high, rest_low  # every score is 0, nothing can pass the gate
+        models = []
+        for i in rows:
+            tr = lost[i]
             if tr.pmr_model is None:
                 tr.pmr_model = fit_pmr(tr.history_array(), tr.last_update_t, c.gamma, c.ref_fps,
                                       backend=c.pmr_backend)
                 self.pmr_fits += 1
-            model = tr.pmr_model
-            score[i] = p_match(model, centres, t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std) * c_time(
-                model, t, c.gamma)
+            models.append(tr.pmr_model)
+        if rows:
+            p = p_match_many(models, centres, t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std)
+            score[rows] = p * np.array([c_time(m, t, c.gamma) for m in models])[:, None]
         used = set()
         for r, col in assign(-score, score > c.tau_t):
             tr, d = lost[r], int(cand[col])
@@ -176,6 +181,8 @@ class JPTrack(MultiStageTracker):
             tr.state = TrackState.RECOVERED
             updated.add(id(tr))
             used.add(d)
+        if not used:
+            return rest_high, rest_low
         keep_high = np.asarray([d for d in rest_high if d not in used], dtype=np.int64)
         keep_low = np.asarray([d for d in rest_low if d not in used], dtype=np.int64)
         return keep_high, keep_low

@@ -36,6 +36,13 @@ def _size_std(w: float, h: float, weight: float) -> np.ndarray:
 
 
 _DIAG = np.arange(8)
+_DIAG4 = np.arange(4)
+#: Columns w, h, w, h of the state: the per-coordinate sizes the noise scales with.
+_WHWH = np.array([2, 3, 2, 3])
+#: Per state entry: the size column its noise scales with, the std weight and the std floor.
+_NOISE_SIZE = np.array([2, 3, 2, 3, 2, 3, 2, 3])
+_NOISE_WEIGHT = np.array([STD_WEIGHT_POSITION] * 4 + [STD_WEIGHT_VELOCITY] * 4)
+_NOISE_FLOOR = np.array([MIN_STD_PX] * 4 + [MIN_STD_PX * (STD_WEIGHT_VELOCITY / STD_WEIGHT_POSITION)] * 4)
 
 
 class ConstantVelocityKalman:
@@ -112,25 +119,43 @@ def predict_many(filters: list[ConstantVelocityKalman], dts: np.ndarray) -> None
     if n == 0:
         return
     dt = np.maximum(np.asarray(dts, dtype=np.float64), 0.0)
-    ref = np.array([f.ref_fps for f in filters])
-    means = np.stack([f.mean for f in filters])
-    covs = np.stack([f.covariance for f in filters])
+    ref = _common_ref_fps(filters)
+    means = np.array([f.mean for f in filters])
+    covs = np.array([f.covariance for f in filters])
     steps = dt * ref
-    wh = np.column_stack([means[:, 2], means[:, 3], means[:, 2], means[:, 3]])
-    pos_floor = MIN_STD_PX
-    vel_floor = MIN_STD_PX * (STD_WEIGHT_VELOCITY / STD_WEIGHT_POSITION)
-    std_pos = np.maximum(pos_floor, STD_WEIGHT_POSITION * wh)
-    std_vel = np.maximum(vel_floor, STD_WEIGHT_VELOCITY * wh) * ref[:, None]
-    q = np.hstack([std_pos**2, std_vel**2]) * steps[:, None]
-    means[:, :4] += dt[:, None] * means[:, 4:]
+    # Process noise of all 8 state entries in one expression: position stds
+    # max(floor, w_pos * size), velocity stds max(floor, w_vel * size) * ref_fps (times 1.0 for
+    # positions, which is exact), squared, times the elapsed reference frames.
+    if np.ndim(ref):
+        unit = np.ones((n, 8))
+        unit[:, 4:] = ref[:, None]
+    else:
+        unit = np.array([1.0, 1.0, 1.0, 1.0, ref, ref, ref, ref])
+    q = (np.maximum(_NOISE_FLOOR, _NOISE_WEIGHT * means[:, _NOISE_SIZE]) * unit) ** 2
+    q *= steps[:, None]
+    dt_col = dt[:, None]
+    means[:, :4] += dt_col * means[:, 4:]
     moved = dt > 0
-    means[moved, 2:4] = np.maximum(means[moved, 2:4], 1e-3)
-    covs[:, :4, :] += dt[:, None, None] * covs[:, 4:, :]
-    covs[:, :, :4] += dt[:, None, None] * covs[:, :, 4:]
+    if moved.all():
+        np.maximum(means[:, 2:4], 1e-3, out=means[:, 2:4])
+    else:
+        means[moved, 2:4] = np.maximum(means[moved, 2:4], 1e-3)
+    dt_3 = dt_col[:, :, None]
+    covs[:, :4, :] += dt_3 * covs[:, 4:, :]
+    covs[:, :, :4] += dt_3 * covs[:, :, 4:]
     covs[:, _DIAG, _DIAG] += q
-    for i, f in enumerate(filters):
-        f.mean = means[i]
-        f.covariance = covs[i]
+    for f, m, c in zip(filters, means, covs):
+        f.mean = m
+        f.covariance = c
+
+
+def _common_ref_fps(filters: list[ConstantVelocityKalman]) -> float | np.ndarray:
+    """The filters' ``ref_fps`` as one float when they agree (always, within one tracker), else
+    one per filter: a scalar saves building and broadcasting an array every frame."""
+    ref = filters[0].ref_fps
+    if all(f.ref_fps == ref for f in filters):
+        return ref
+    return np.array([f.ref_fps for f in filters])
 
 
 def update_many(filters: list[ConstantVelocityKalman], boxes_cxcywh: np.ndarray) -> None:
@@ -139,17 +164,16 @@ def update_many(filters: list[ConstantVelocityKalman], boxes_cxcywh: np.ndarray)
     n = len(filters)
     if n == 0:
         return
-    means = np.stack([f.mean for f in filters])
-    covs = np.stack([f.covariance for f in filters])
-    wh = np.column_stack([means[:, 2], means[:, 3], means[:, 2], means[:, 3]])
-    r = np.maximum(MIN_STD_PX, STD_WEIGHT_POSITION * wh) ** 2
+    means = np.array([f.mean for f in filters])
+    covs = np.array([f.covariance for f in filters])
+    r = np.maximum(MIN_STD_PX, STD_WEIGHT_POSITION * means[:, _WHWH]) ** 2
     s = covs[:, :4, :4].copy()
-    s[:, _DIAG[:4], _DIAG[:4]] += r
+    s[:, _DIAG4, _DIAG4] += r
     gain = np.linalg.solve(s, covs[:, :4, :]).transpose(0, 2, 1)  # (n, 8, 4)
     innovation = np.asarray(boxes_cxcywh, dtype=np.float64) - means[:, :4]
     means = means + np.einsum("nij,nj->ni", gain, innovation)
     covs = covs - gain @ s @ gain.transpose(0, 2, 1)
-    means[:, 2:4] = np.maximum(means[:, 2:4], 1e-3)
-    for i, f in enumerate(filters):
-        f.mean = means[i]
-        f.covariance = covs[i]
+    np.maximum(means[:, 2:4], 1e-3, out=means[:, 2:4])
+    for f, m, c in zip(filters, means, covs):
+        f.mean = m
+        f.covariance = c

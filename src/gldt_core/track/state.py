@@ -103,13 +103,13 @@ class Track:
 
     def update(self, box_xyxy: np.ndarray, score: float, t: float, rel_xy: tuple[float, float]) -> None:
         """Fuse a matched detection at ``t`` (the filter must already be at ``t``)."""
-        x1, y1, x2, y2 = (float(v) for v in box_xyxy[:4])
+        x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
         self.kf.update(np.array([(x1 + x2) * 0.5, (y1 + y2) * 0.5, x2 - x1, y2 - y1]))
         self.after_update(box_xyxy, score, t, rel_xy)
 
     def after_update(self, box_xyxy: np.ndarray, score: float, t: float, rel_xy: tuple[float, float]) -> None:
         """Bookkeeping of an update whose filter step was already done (see update_tracks)."""
-        x1, y1, x2, y2 = (float(v) for v in box_xyxy[:4])
+        x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
         self.last_obs_cxcy = np.array([(x1 + x2) * 0.5, (y1 + y2) * 0.5])
         self.score = float(score)
         self.hits += 1
@@ -154,6 +154,19 @@ class Track:
         return np.asarray(self.history, dtype=np.float64)
 
 
+def boxes_xyxy(tracks: list[Track]) -> np.ndarray:
+    """``(len(tracks), 4)`` array of ``tr.box_xyxy``, converted in one vectorised step (the same
+    IEEE operations as the property, without a small array per track)."""
+    if not tracks:
+        return np.zeros((0, 4))
+    m = np.array([tr.kf.mean[:4] for tr in tracks], dtype=np.float64)
+    half_w = 0.5 * m[:, 2:4]
+    out = np.empty((len(tracks), 4))
+    out[:, :2] = m[:, :2] - half_w
+    out[:, 2:] = m[:, :2] + half_w
+    return out
+
+
 def advance_tracks(tracks: list[Track], t: float) -> None:
     """``advance(t)`` for every track, vectorised over their filters."""
     if not tracks:
@@ -171,8 +184,9 @@ def update_tracks(
     if not tracks:
         return
     b = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
-    measured = np.column_stack([(b[:, 0] + b[:, 2]) * 0.5, (b[:, 1] + b[:, 3]) * 0.5,
-                                b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]])
+    measured = np.empty((len(b), 4))
+    measured[:, :2] = (b[:, :2] + b[:, 2:]) * 0.5
+    measured[:, 2:] = b[:, 2:] - b[:, :2]
     update_many([tr.kf for tr in tracks], measured)
     for tr, box, score, rel in zip(tracks, b, scores, rels):
         tr.after_update(box, float(score), t, rel)

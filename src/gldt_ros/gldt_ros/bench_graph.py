@@ -8,16 +8,21 @@ Three runs on the same bag, in one invocation so the machine's load is shared al
 2. lockstep replay through the five processes - time per frame, whose excess over (1) is what
    the ROS transport and process hops cost;
 3. free-running replay at the bag's rate x ``--rate`` - throughput, p50/p99 latency from
-   publishing a camera frame to receiving its ``/gldt/tracks``, and frames left unanswered.
+   publishing a camera frame to receiving its ``/gldt/tracks``, and frames left unanswered;
+4. start-up (issue #8, goal <= 5 s): from launching the node processes to every node ready and
+   to the first ``/gldt/tracks`` holding a track, the bag playing in real time (30 fps), measured
+   by ``gldt_ros.soak_graph --startup-only``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import shutil
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -44,6 +49,17 @@ def graph_run(bag: Path, extra: list[str]) -> str:
     return summary[-1]
 
 
+def startup_run(bag: Path) -> dict:
+    """Start-up times of a fresh graph (``soak_graph --startup-only``): ready_s, first_track_s, per node."""
+    with tempfile.TemporaryDirectory() as folder:
+        report = Path(folder) / "startup.json"
+        command = [sys.executable, "-m", "gldt_ros.soak_graph", "--startup-only", "--bag", str(bag), "--json", str(report)]
+        completed = subprocess.run(command, capture_output=True, text=True, timeout=300, check=False)
+        if not report.is_file():
+            raise SystemExit(f"bench_graph: start-up run failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
+        return json.loads(report.read_text())["startup"]
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gldt_ros.bench_graph", description=__doc__.split("\n\n")[0])
     from gldt_core.paths import REPO_ROOT
@@ -57,11 +73,15 @@ def main(argv: list[str] | None = None) -> int:
     lockstep = graph_run(args.bag, ["--lockstep"])
     lockstep_s = float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames
     free = graph_run(args.bag, ["--rate", str(args.rate)])
+    startup = startup_run(args.bag)
     print(f"bench_graph: {args.bag.name}, {frames} frames")
     print(f"  offline core pipeline : {1000 * offline_s:7.1f} ms/frame ({1 / offline_s:5.1f} fps)")
     print(f"  graph, lockstep       : {1000 * lockstep_s:7.1f} ms/frame ({1 / lockstep_s:5.1f} fps)")
     print(f"  ROS overhead          : {100 * (lockstep_s / offline_s - 1):+7.1f} % of the core's time per frame (goal <= 20 %)")
     print(f"  free-running x{args.rate:g}    : {free.split('pipeline: ', 1)[1]}")
+    first = startup.get("first_track_s")
+    first_text = "no track within 60 s" if first is None else f"first non-empty track {first:.2f} s"
+    print(f"  start-up              : all nodes ready {startup.get('ready_s', float('nan')):.2f} s, {first_text} after launch (goal <= 5 s)")
     return 0
 
 

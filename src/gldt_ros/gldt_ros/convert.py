@@ -13,6 +13,7 @@ from gldt_msgs.msg import Detection, DetectionArray, Roi, Track, TrackArray
 from sensor_msgs.msg import Image, RegionOfInterest
 
 from gldt_core.imaging import decode_compressed_image, decode_raw_image, encode_bgr8
+from gldt_core.pipeline.steps import state_name
 
 
 def stamp_seconds(stamp: Any) -> float:
@@ -95,7 +96,7 @@ _STATE_CODES = {
 
 def state_code(state: Any) -> int:
     """``Track.STATE_*`` for a core ``TrackState`` (by name, so enum values may be anything)."""
-    name = str(getattr(state, "name", state)).upper()
+    name = state_name(state)
     if name not in _STATE_CODES:
         raise ValueError(f"unknown track state {state!r}")
     return _STATE_CODES[name]

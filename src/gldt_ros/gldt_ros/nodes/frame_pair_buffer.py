@@ -38,6 +38,9 @@ class FramePairBuffer(GldtNode):
         self._index = 0
         self._size: tuple[int, int] | None = None
         self._previous_index: int | None = None
+        # (frame index, letterboxed input) of the last GD frame: the next GD frame's predecessor,
+        # so a GD stretch letterboxes each 1080p frame once, not twice (as GLDTPipeline does).
+        self._last_prepared: tuple[int, np.ndarray] | None = None
         camera_qos = qos.camera_qos(self.param("camera_qos"))
         transport = self.param("image_transport")
         if transport in ("auto", "compressed"):
@@ -63,6 +66,7 @@ class FramePairBuffer(GldtNode):
             )
             self._frames.clear()
             self._previous_index = None
+            self._last_prepared = None
         self._size = size
         index = self._index
         self._index += 1
@@ -78,8 +82,14 @@ class FramePairBuffer(GldtNode):
         header, frame = self._frames[index]
         previous = self._frames.get(self._previous_index, (None, frame))[1] if self._previous_index is not None else frame
         if decision.mode == SchedulerState.MODE_GLOBAL:
-            prepared_previous, _ = prepare_global_input(self.global_input, previous)
             prepared_current, letterbox = prepare_global_input(self.global_input, frame)
+            if self._previous_index is None:
+                prepared_previous = prepared_current
+            elif self._last_prepared is not None and self._last_prepared[0] == self._previous_index:
+                prepared_previous = self._last_prepared[1]
+            else:
+                prepared_previous, _ = prepare_global_input(self.global_input, previous)
+            self._last_prepared = (index, prepared_current)
             self.pairs.publish(
                 FramePair(
                     header=header,

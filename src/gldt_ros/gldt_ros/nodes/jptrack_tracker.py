@@ -18,18 +18,13 @@ from visualization_msgs.msg import MarkerArray
 from gldt_core.geometry import PinholeIntrinsics
 from gldt_core.pipeline.config import PipelineConfig, TrackerSettings
 from gldt_core.pipeline.pipeline import accepts_keyword, build_tracker
+from gldt_core.pipeline.stamps import StampOrder
 from gldt_core.pipeline.steps import stable_predictions
 
 from gldt_ros import qos, topics
 from gldt_ros.convert import detection_array_to_tracker_input, msgs_to_rois, stamp_seconds, track_to_msg
 from gldt_ros.planner import fill_planner_fields, markers_for
 from gldt_ros.node_base import GldtNode, run_node
-
-
-#: A message this much older than the last processed one is late, not a restarted stream [s].
-STALE_WINDOW_S = 1.0
-
-
 
 
 class TrackerNode(GldtNode):
@@ -42,7 +37,7 @@ class TrackerNode(GldtNode):
         self._takes_rois = accepts_keyword(self.tracker.update, "rois")
         self._frame_size: tuple[int, int] | None = None
         self.intrinsics = None
-        self._last_stamp: float | None = None
+        self._order = StampOrder()
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
         self.create_subscription(CameraInfo, topics.CAMERA_INFO, self.guarded(self.on_camera_info, "camera_info"), qos.camera_qos(self.param("camera_qos")))
@@ -66,7 +61,7 @@ class TrackerNode(GldtNode):
                 self.get_logger().warning(f"frame size changed to {size[0]}x{size[1]}; tracker re-initialised")
             self.tracker = build_tracker(self.config, size)
             self._frame_size = size
-            self._last_stamp = None
+            self._order.forget()
         self._check_time(t, tick.frame_index)
         predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
         by_id = {int(track.track_id): track for track in self.tracker.tracks}
@@ -81,27 +76,19 @@ class TrackerNode(GldtNode):
         )
 
     def _check_time(self, t: float, frame_index: int) -> None:
-        """Handle a stamp at or before the last one processed.
-
-        A little older (within ``STALE_WINDOW_S``): a late message, e.g. from the other detector
-        around a node restart - dropped (ValueError: logged and counted), never allowed to move
-        the tracker back in time. Much older: the stream restarted (a bag replayed again) - the
-        tracker is reset and goes on.
-        """
-        if self._last_stamp is None or t > self._last_stamp:
-            return
-        if self._last_stamp - t < STALE_WINDOW_S:
-            raise ValueError(f"frame {frame_index} stamped {t:.3f} s arrived after {self._last_stamp:.3f} s; stale, dropped")
-        self.get_logger().warning(
-            f"frame {frame_index}: time went backwards ({self._last_stamp:.3f} s -> {t:.3f} s); tracker reset"
-        )
-        self.tracker.reset()
-        self._last_stamp = None
+        """Drop late messages (StaleMessage: logged and counted by ``guarded``); reset the tracker
+        when the stream really restarted (:class:`gldt_core.pipeline.stamps.StampOrder`)."""
+        last = self._order.last_stamp
+        if self._order.check(t, frame_index):
+            self.get_logger().warning(
+                f"frame {frame_index}: stream restarted ({last:.3f} s -> {t:.3f} s); tracker reset"
+            )
+            self.tracker.reset()
 
     def on_detections(self, message: DetectionArray) -> None:
         t = stamp_seconds(message.header.stamp)
         self._check_time(t, message.frame_index)
-        self._last_stamp = t
+        self._order.accept(t)
         detections = detection_array_to_tracker_input(message)
         if self._takes_rois:
             # PMR's x_rel / y_rel features are relative to the ROI a detection came from.
