@@ -2,8 +2,9 @@
 
 Each node processes messages in callbacks; a bad message must cost one log line and that message
 only, never the node. :meth:`GldtNode.guarded` wraps a callback so that documented errors
-(``ValueError`` and its subclasses such as ``ImageDecodeError``) are logged once per kind and
-counted as dropped frames in the node's ``/diagnostics`` status.
+(``ValueError`` and its subclasses such as ``ImageDecodeError``) are counted as dropped frames in
+the node's ``/diagnostics`` status and logged in one line, repeats of the same kind at most once a
+second (:mod:`gldt_ros.log_throttle`).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from gldt_ros import topics
+from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
 
 
@@ -34,6 +36,7 @@ class GldtNode(Node):
         self.frames_in = 0
         self.frames_dropped = 0
         self._warned: set[str] = set()
+        self._error_lines = LogThrottle()
         self._diagnostics = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self.create_timer(float(self.param("diagnostics_period")), self._publish_diagnostics)
 
@@ -52,7 +55,9 @@ class GldtNode(Node):
                 callback(message)
             except ValueError as error:
                 self.frames_dropped += 1
-                self.get_logger().error(f"dropped {what}: {error}")
+                line = self._error_lines.text_for(what, str(error))
+                if line is not None:
+                    self.get_logger().error(f"dropped {what}: {line}")
             finally:
                 self._processing.append(time.perf_counter() - start)
 
