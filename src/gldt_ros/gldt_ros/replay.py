@@ -148,10 +148,7 @@ class GraphDriver(Node):
                     if delay > 0:
                         stop.wait(delay)
                 if message.msgtype in IMAGE_TYPES_SET:
-                    with self._answered_cv:
-                        self._published_at[header_stamp_ns(message.data)] = time.monotonic()
-                        if len(self._published_at) > 1000:  # frames the graph skipped: forget the oldest
-                            del self._published_at[next(iter(self._published_at))]
+                    self.note_published(header_stamp_ns(message.data))
                 publisher.publish(message.data)
                 if message.msgtype in IMAGE_TYPES_SET:
                     frames += 1
@@ -160,7 +157,7 @@ class GraphDriver(Node):
         except ValueError as error:
             self.get_logger().error(str(error))
         if not self.args.lockstep:
-            self._drain(frames, stop)
+            self.drain(frames, stop)
         elapsed = time.monotonic() - start_wall
         self.frames_published = frames
         latency = ""
@@ -185,10 +182,22 @@ class GraphDriver(Node):
             self._answered.discard(stamp_ns)
         return True
 
-    def _drain(self, frames: int, stop: threading.Event, quiet_s: float = 1.0) -> None:
-        """After a paced replay, wait until the graph has gone quiet."""
+    def note_published(self, stamp_ns: int) -> None:
+        """Remember when the camera frame stamped ``stamp_ns`` went out, for its camera-to-tracks
+        latency; at most 1000 are kept (frames the graph skipped are forgotten, oldest first)."""
+        with self._answered_cv:
+            self._published_at[stamp_ns] = time.monotonic()
+            if len(self._published_at) > 1000:
+                del self._published_at[next(iter(self._published_at))]
+
+    def drain(self, frames: int, stop: threading.Event, quiet_s: float = 1.0, limit_s: float | None = None) -> None:
+        """After a paced replay, wait until the graph has answered ``frames`` frames or gone quiet
+        for ``quiet_s`` (and at most ``limit_s`` when given)."""
+        deadline = None if limit_s is None else time.monotonic() + limit_s
         last = -1
         while not stop.is_set() and self.tracks_received < frames and self.tracks_received != last:
+            if deadline is not None and time.monotonic() >= deadline:
+                break
             last = self.tracks_received
             stop.wait(quiet_s)
 

@@ -567,7 +567,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
 
         replay = play(driver, frames, args.rate, duration, stop, on_frame)
         replay["bag"] = str(args.bag)
-        drain(driver, replay["frames_published"], stop)
+        driver.drain(replay["frames_published"], stop, limit_s=10.0)
         if not args.startup_only:
             samples.append(take_sample(time.monotonic() - replay_start, children, replay["frames_published"], driver, window))
         if window.first_track_at is not None:
@@ -590,26 +590,11 @@ def take_sample(t_s: float, children: Any, published: int, driver: Any, window: 
     return Sample(t_s=t_s, rss=rss, pids=pids, frames_published=published, tracks_received=driver.tracks_received, **window.roll())
 
 
-def drain(driver: Any, frames: int, stop: threading.Event, quiet_s: float = 1.0, limit_s: float = 10.0) -> None:
-    """Wait for the graph to answer the last frames (until it has gone quiet for ``quiet_s``)."""
-    deadline = time.monotonic() + limit_s
-    last = -1
-    while time.monotonic() < deadline and driver.tracks_received < frames and driver.tracks_received != last:
-        last = driver.tracks_received
-        time.sleep(quiet_s)
-
-
 def _soak_driver_class() -> type:
     from gldt_ros.replay import GraphDriver
 
     class SoakDriver(GraphDriver):
-        """``GraphDriver`` with its latency bookkeeping exposed to a player that restamps frames."""
-
-        def note_published(self, stamp_ns: int) -> None:
-            with self._answered_cv:
-                self._published_at[stamp_ns] = time.monotonic()
-                if len(self._published_at) > 1000:  # frames the graph skipped: forget the oldest
-                    del self._published_at[next(iter(self._published_at))]
+        """``GraphDriver`` plus the replay statistics of the soak report."""
 
         def replay_stats(self, rate_hz: float, window: TrackWindow, children: Any) -> dict[str, Any]:
             stats: dict[str, Any] = {"rate_hz": rate_hz, "tracks_received": self.tracks_received}
