@@ -175,18 +175,23 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
     return train_ds, val_subset, info
 
 
+def _run_batch(model: torch.nn.Module, task: str, batch: tuple) -> tuple[Any, torch.Tensor, Any]:
+    """The model on one collated batch: ``(output, current images, boxes)``. Global batches are
+    ``(previous, current, boxes)`` (collate_pairs), local ones ``(crops, boxes)`` (collate_crops)."""
+    if task == "global":
+        prev, cur, boxes = batch
+        return model(prev, cur), cur, boxes
+    cur, boxes = batch
+    return model(cur), cur, boxes
+
+
 @torch.no_grad()
 def validate(model: torch.nn.Module, task: str, loader: DataLoader, score_threshold: float) -> dict[str, float]:
     """Drone-class AP metrics of ``model`` over ``loader`` (boxes in network-input pixels)."""
     model.eval()
     dets, gts = [], []
     for batch in loader:
-        if task == "global":
-            prev, cur, boxes = batch
-            out = model(prev, cur)
-        else:
-            cur, boxes = batch
-            out = model(cur)
+        out, cur, boxes = _run_batch(model, task, batch)
         in_h, in_w = cur.shape[2], cur.shape[3]
         for o, b in zip(out.numpy(), boxes):
             d = decode_output(o, score_threshold, box_scale=(in_w, in_h))
@@ -277,12 +282,7 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         sums = {"loss": 0.0, "box": 0.0, "cls": 0.0, "dfl": 0.0}
         bar = tqdm(loader, desc=f"{task} epoch {epoch}/{tcfg['epochs']}", disable=not progress, dynamic_ncols=True)
         for batch in bar:
-            if task == "global":
-                prev, cur, boxes = batch
-                maps = model(prev, cur)
-            else:
-                cur, boxes = batch
-                maps = model(cur)
+            maps, cur, boxes = _run_batch(model, task, batch)
             loss, parts = criterion(maps, boxes)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
