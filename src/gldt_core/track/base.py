@@ -20,8 +20,8 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
-from gldt_core.track.assignment import linear_sum_assignment
 from gldt_core.track.geometry import iou_pairs_above, iou_xyxy, validate_detections, validate_time
 from gldt_core.track.jcma import FORBIDDEN
 from gldt_core.track.state import (
