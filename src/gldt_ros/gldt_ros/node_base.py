@@ -5,6 +5,10 @@ only, never the node. :meth:`GldtNode.guarded` wraps a callback so that document
 (``ValueError`` and its subclasses such as ``ImageDecodeError``) are counted as dropped frames in
 the node's ``/diagnostics`` status and logged in one line, repeats of the same kind at most once a
 second (:mod:`gldt_ros.log_throttle`).
+
+The diagnostics also carry how many peers each of the node's topics has matched
+(:mod:`gldt_ros.graph_links`), republished as soon as that changes: it is how the pipeline knows
+the graph is connected end to end before it sends the first frame.
 """
 
 from __future__ import annotations
@@ -17,9 +21,14 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 
-from gldt_ros import topics
+from gldt_ros import qos, topics
+from gldt_ros.graph_links import link_key_values, own_link_counts
 from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
+
+
+#: How often a node checks whether its matched peers changed (a cheap count per topic).
+LINK_CHECK_PERIOD_S = 0.1
 
 
 class GldtNode(Node):
@@ -37,8 +46,11 @@ class GldtNode(Node):
         self.frames_dropped = 0
         self._warned: set[str] = set()
         self._error_lines = LogThrottle()
-        self._diagnostics = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
+        # Latched, so a process that starts listening late still gets each node's latest status.
+        self._diagnostics = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.LATCHED_STATE)
+        self._reported_links: dict[str, int] | None = None
         self.create_timer(float(self.param("diagnostics_period")), self._publish_diagnostics)
+        self.create_timer(LINK_CHECK_PERIOD_S, self._publish_if_links_changed)
 
     def param(self, name: str) -> Any:
         """Current value of a schema parameter."""
@@ -69,7 +81,13 @@ class GldtNode(Node):
             self._warned.add(key)
             self.get_logger().warning(text)
 
+    def _publish_if_links_changed(self) -> None:
+        if own_link_counts(self) != self._reported_links:
+            self._publish_diagnostics()
+
     def _publish_diagnostics(self) -> None:
+        links = own_link_counts(self)
+        self._reported_links = links
         rate = 0.0
         if len(self._arrivals) >= 2 and self._arrivals[-1] > self._arrivals[0]:
             rate = (len(self._arrivals) - 1) / (self._arrivals[-1] - self._arrivals[0])
@@ -84,6 +102,7 @@ class GldtNode(Node):
                 KeyValue(key="processing_time_ms", value=f"{mean_ms:.2f}"),
                 KeyValue(key="inputs", value=str(self.frames_in)),
                 KeyValue(key="dropped", value=str(self.frames_dropped)),
+                *link_key_values(links),
             ],
         )
         array = DiagnosticArray(status=[status])

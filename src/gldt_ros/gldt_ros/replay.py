@@ -7,11 +7,14 @@ import threading
 import time
 from typing import Callable
 
+from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from gldt_ros import qos, topics
 from gldt_ros.bag_io import IMAGE_TYPES_SET, McapRecorder, bag_topics, header_stamp_ns, iter_bag, message_class
+from gldt_ros.graph_links import missing_links, own_link_counts, parse_link_counts, reporting_nodes_missing
+from gldt_ros.pipeline import NODES
 
 #: Subscriptions each node creates last, once its models and state are ready: the graph is up when
 #: every one of them is matched (node names alone appear before a node finished starting).
@@ -23,6 +26,20 @@ READY_SUBSCRIPTIONS = {
     topics.ROI_CROPS: 1,  # local_detector
     topics.DETECTIONS: 2,  # jptrack_tracker, mode_scheduler
 }
+
+#: Publishers the graph must have, as this process sees them (the other half of being up).
+READY_PUBLISHERS = {
+    topics.FRAME_TICKS: 1,  # frame_pair_buffer
+    topics.FRAME_PAIRS: 1,  # frame_pair_buffer
+    topics.ROI_CROPS: 1,  # frame_pair_buffer
+    topics.SCHEDULER_STATE: 1,  # mode_scheduler
+    topics.TRACK_PREDICTIONS: 1,  # jptrack_tracker
+    topics.DETECTIONS: 2,  # global_detector, local_detector
+    topics.TRACKS: 1,  # jptrack_tracker
+}
+
+#: Prefix of the node statuses in ``/diagnostics`` (see ``GldtNode``).
+_STATUS_PREFIX = "gldt/"
 
 RECORDED_TOPICS = {
     topics.TRACKS: "gldt_msgs/msg/TrackArray",
@@ -48,6 +65,23 @@ class GraphDriver(Node):
                 message_class(msgtype), topic, self._make_record_callback(topic, msgtype), qos.RELIABLE, raw=True,
             )
         self._bag_publishers: dict[str, object] = {}
+        # Each node's matched-peer counts from its diagnostics (latched, so none is missed).
+        self._link_reports: dict[str, dict[str, int]] = {}
+        self._link_reports_lock = threading.Lock()
+        self.create_subscription(
+            DiagnosticArray,
+            topics.DIAGNOSTICS,
+            self._on_diagnostics,
+            QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL),
+        )
+
+    def _on_diagnostics(self, array: DiagnosticArray) -> None:
+        for status in array.status:
+            if status.name.startswith(_STATUS_PREFIX) and status.hardware_id == self.get_namespace():
+                counts = parse_link_counts(status)
+                if counts:
+                    with self._link_reports_lock:
+                        self._link_reports[status.name[len(_STATUS_PREFIX):]] = counts
 
     def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
         def callback(raw: bytes) -> None:
@@ -80,8 +114,10 @@ class GraphDriver(Node):
             present = {
                 (namespace.rstrip("/") + "/" + name) for name, namespace in self.get_node_names_and_namespaces()
             }
-            if wanted <= present and all(
-                self.count_subscribers(topic) >= count for topic, count in READY_SUBSCRIPTIONS.items()
+            if (
+                wanted <= present
+                and all(self.count_subscribers(topic) >= count for topic, count in READY_SUBSCRIPTIONS.items())
+                and all(self.count_publishers(topic) >= count for topic, count in READY_PUBLISHERS.items())
             ):
                 return True
             time.sleep(0.1)
@@ -96,10 +132,11 @@ class GraphDriver(Node):
         return self._bag_publishers[topic]
 
     def _prepare_publishers(self, stop: threading.Event, timeout_s: float = 10.0) -> None:
-        """Create every publisher up front and wait until the graph has matched the image topic.
+        """Create every publisher up front and wait until every link of the graph is matched.
 
         Without this the first frames would be published before DDS discovery finished and be
-        lost (a reliable publisher only delivers to subscriptions it has already matched).
+        lost: a reliable publisher only delivers to subscriptions it has already matched, and the
+        nodes' own links (tracker to scheduler, scheduler to buffer, ...) match on their own time.
         """
         image_publishers = []
         for topic, msgtype in bag_topics(self.args.bag).items():
@@ -113,14 +150,34 @@ class GraphDriver(Node):
         deadline = time.monotonic() + timeout_s
         while image_publishers and not stop.is_set() and time.monotonic() < deadline:
             if any(p.get_subscription_count() > 0 for p in image_publishers):
-                # The nodes' own publishers match their peers' subscriptions a little after we
-                # see those subscriptions; a lost first tick would cost a lockstep replay its
-                # determinism, so give discovery a moment to settle.
-                time.sleep(1.0 if self.args.lockstep else 0.2)
-                return
+                break
             time.sleep(0.05)
-        if image_publishers:
-            self.get_logger().warning(f"no subscriber matched the bag's image topic after {timeout_s:.0f} s")
+        else:
+            if image_publishers and not stop.is_set():
+                self.get_logger().warning(f"no subscriber matched the bag's image topic after {timeout_s:.0f} s")
+            return
+        self.wait_until_linked(list(NODES), stop, max(0.0, deadline - time.monotonic()))
+
+    def wait_until_linked(self, node_names: list[str], stop: threading.Event, timeout_s: float) -> bool:
+        """Block until each named node, and this one, has matched every endpoint this process sees
+        on its topics (:mod:`gldt_ros.graph_links`); on timeout log what is missing and go on."""
+        deadline = time.monotonic() + timeout_s
+        missing: list[str] = []
+        while not stop.is_set():
+            with self._link_reports_lock:
+                reports = dict(self._link_reports)
+            silent = reporting_nodes_missing(node_names, reports)
+            reports[self.get_name()] = own_link_counts(self)
+            missing = [f"{name}: no link report yet" for name in silent] + missing_links(self, reports)
+            if not missing:
+                self.get_logger().info(f"every graph link matched after {timeout_s - (deadline - time.monotonic()):.2f} s")
+                return True
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(0.02)
+        if missing:
+            self.get_logger().warning(f"graph links not all matched after {timeout_s:.1f} s: {'; '.join(missing)}")
+        return False
 
     def replay(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str:
         """Play the bag; return a one-line summary."""
