@@ -35,9 +35,27 @@ def test_install_tree_has_executable(name: str) -> None:
 
 def test_install_tree_has_share_files() -> None:
     share = INSTALL / "share" / "gldt_ros"
-    for relative in ("package.xml", "config/gldt.yaml", "launch/gldt.launch.py"):
+    for relative in ("package.xml", "config/gldt.yaml", "config/fastdds_profile.xml", "launch/gldt.launch.py"):
         assert (share / relative).is_file(), f"share/gldt_ros/{relative} missing"
     assert (REPO / "install" / "gldt_ros" / "share" / "ament_index" / "resource_index" / "packages" / "gldt_ros").is_file()
+
+
+def test_pipeline_points_fast_dds_at_the_shipped_profile_unless_the_user_chose_one(monkeypatch) -> None:
+    """The profile that makes a restarted node discoverable in 250 ms, not 3 s, is the default;
+    a profile the user exported is left alone."""
+    import xml.etree.ElementTree as ElementTree
+
+    from gldt_ros.pipeline import DDS_PROFILE_VARIABLE, use_graph_dds_profile
+
+    monkeypatch.delenv(DDS_PROFILE_VARIABLE, raising=False)
+    profile = Path(use_graph_dds_profile())
+    assert os.environ[DDS_PROFILE_VARIABLE] == str(profile)
+    assert profile.parent == INSTALL / "share" / "gldt_ros" / "config", profile
+    namespace = {"dds": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+    period = ElementTree.parse(profile).find(".//dds:leaseAnnouncement/dds:nanosec", namespace)
+    assert period is not None and int(period.text) <= 250_000_000
+    monkeypatch.setenv(DDS_PROFILE_VARIABLE, "/etc/my_profile.xml")
+    assert use_graph_dds_profile() == "/etc/my_profile.xml"
 
 
 def test_config_matches_parameter_schema() -> None:

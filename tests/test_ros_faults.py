@@ -24,6 +24,7 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels tha
 
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
+from gldt_ros.pipeline import NODES  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PIPELINE = REPO / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
@@ -153,7 +154,15 @@ def _garbage_jpeg(header):
     return message
 
 
-def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: Path) -> None:
+@pytest.mark.parametrize("victim", NODES)
+def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: Path, victim: str) -> None:
+    """Issue 9: kill any one node mid-replay; tracks resume within 2 s of its restart.
+
+    Measured from the restarted node's "ready" line: what is left is DDS discovery of the new
+    process plus one frame. The lockstep driver gives up on an unanswered frame after
+    ``--frame-timeout`` (0.5 s here) and sends the next, so probing adds up to that much; a
+    shorter timeout makes slow global frames pile up on a loaded machine, which costs more.
+    """
     from gldt_core.io.recording import iter_recorded
 
     bag = REPO / "bags" / "halmstad_v_drone_001"
@@ -170,7 +179,7 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
             lines.append((time.time(), line))
             if not killed and "nodes up" in line:
                 time.sleep(4.0)  # mid-replay
-                pid = next(int(text.split("pid ")[1].rstrip(")\n")) for _, text in lines if "started jptrack_tracker" in text)
+                pid = next(int(text.split("pid ")[1].rstrip(")\n")) for _, text in lines if f"started {victim}" in text)
                 os.kill(pid, signal.SIGKILL)
                 killed = True
         process.wait(timeout=600)
@@ -179,9 +188,10 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
             os.killpg(process.pid, signal.SIGKILL)
     text = "".join(line for _, line in lines)
     assert process.returncode == 0, text
-    assert "jptrack_tracker exited" in text and "restarting" in text, text
-    back = [when for when, line in lines if "jptrack_tracker ready" in line]
-    assert len(back) == 2, "the tracker should have come up twice (start + restart):\n" + text
+    restarted = [when for when, line in lines if f"{victim} exited" in line and "restarting" in line]
+    assert len(restarted) == 1, text
+    back = [when for when, line in lines if f"{victim} ready" in line]
+    assert len(back) == 2, f"{victim} should have come up twice (start + restart):\n" + text
     summary = next(line for _, line in lines if "replayed" in line)
     received = int(summary.split(" track messages")[0].rsplit(" ", 1)[1])
     recorded = list(iter_recorded(record, "gldt/tracks"))
@@ -189,11 +199,14 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
     stamps_ns = [m.header.stamp.sec * 1_000_000_000 + m.header.stamp.nanosec for _, m, _ in recorded]
     assert stamps_ns == sorted(stamps_ns), "tracks out of frame order"
     resumed = [log_ns / 1e9 for _, _, log_ns in recorded if log_ns / 1e9 > back[1]]
-    assert resumed, "no tracks after the restarted tracker came up"
-    # Issue 9 asks for 2 s; measured here 1.5-2.7 s from the restarted node's "ready": DDS discovery
-    # of the new participant plus at most one lockstep frame timeout (0.5 s). The bound below
-    # catches a graph that does not resume; closing the gap to 2 s is open work (README).
-    assert resumed[0] - back[1] <= 3.0, f"tracks resumed {resumed[0] - back[1]:.1f} s after the restart"
+    assert resumed, f"no tracks after the restarted {victim} came up"
+    # Measured 0.1-0.9 s from "ready" (1.5-2.1 s from the restart, the node's own start-up
+    # included) on a loaded 2-core machine; before config/fastdds_profile.xml (Fast DDS announces
+    # every 3 s by default) it was 1.5-2.6 s from "ready".
+    assert resumed[0] - back[1] <= 2.0, (
+        f"tracks resumed {resumed[0] - back[1]:.2f} s after the restarted {victim} was ready "
+        f"({resumed[0] - restarted[0]:.2f} s after the restart)"
+    )
     assert len(resumed) >= 20, f"only {len(resumed)} frames tracked after the restart"
 
 
