@@ -141,3 +141,24 @@ def test_wrong_shape_is_refused() -> None:
     with pytest.raises(ValueError, match=r"\(N, 5\)"):
         JPTrack().update(np.zeros((2, 4)), 0.0)
 
+
+def test_assignment_solver_is_scipys_without_importing_scipy_optimize() -> None:
+    """The trackers' solver (loaded from SciPy's extension file, for start-up time) gives exactly
+    SciPy's assignment, and importing it does not pull in scipy.optimize."""
+    import subprocess
+    import sys
+
+    from scipy.optimize import linear_sum_assignment as reference
+
+    from gldt_core.track.assignment import SOURCE, linear_sum_assignment
+
+    assert SOURCE == "extension"
+    rng = np.random.default_rng(0)
+    for _ in range(100):
+        cost = rng.random((int(rng.integers(1, 9)), int(rng.integers(1, 9))))
+        cost[rng.random(cost.shape) < 0.3] = 1e6  # forbidden pairs, as the trackers pass them
+        for ours, theirs in zip(linear_sum_assignment(cost), reference(cost)):
+            np.testing.assert_array_equal(ours, theirs)
+    probe = "import sys, gldt_core.track; print('scipy.optimize' in sys.modules)"
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    assert result.stdout.strip() == "False"

@@ -20,19 +20,29 @@ from __future__ import annotations
 from typing import Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from gldt_core.track.geometry import iou_pairs_above, iou_xyxy, validate_detections, validate_time
+from gldt_core.track.assignment import linear_sum_assignment
+from gldt_core.track.geometry import (
+    SCALAR_IOU_PAIRS,
+    iou_pairs_above,
+    iou_row_pairs_above,
+    iou_xyxy,
+    validate_detections,
+    validate_time,
+)
 from gldt_core.track.jcma import FORBIDDEN
 from gldt_core.track.state import (
     Track,
     TrackState,
     advance_tracks,
+    box_rows,
     boxes_xyxy,
     update_tracks,
 )
 
 OUTPUT_STATES = (TrackState.CONFIRMED, TrackState.RECOVERED)
+#: Up to this many detections, relative positions are computed on Python floats.
+SMALL_REL_ROWS = 32
 
 
 def assign(cost: np.ndarray, allowed: np.ndarray) -> list[tuple[int, int]]:
@@ -124,8 +134,8 @@ class MultiStageTracker:
         advance_tracks(self._tracks, t)
 
         scores = dets[:, 4]
-        high = np.flatnonzero(scores >= self._t_high)
-        low = np.flatnonzero((scores >= self._t_low) & (scores < self._t_high))
+        high = (scores >= self._t_high).nonzero()[0]  # np.flatnonzero without its wrapper
+        low = ((scores >= self._t_low) & (scores < self._t_high)).nonzero()[0]
         active = [tr for tr in self._tracks if tr.state in OUTPUT_STATES]
         lost = [tr for tr in self._tracks if tr.state is TrackState.LOST]
         tentative = [tr for tr in self._tracks if tr.state is TrackState.TENTATIVE]
@@ -194,11 +204,10 @@ class MultiStageTracker:
         self._tracks = self._remove_duplicates(kept)
 
         shown = [tr for tr in self._tracks if tr.state in OUTPUT_STATES and id(tr) in updated]
-        out = np.empty((len(shown), 6))
-        out[:, :4] = boxes_xyxy(shown)
-        out[:, 4] = [float(tr.track_id) for tr in shown]
-        out[:, 5] = [tr.score for tr in shown]
-        return out
+        if not shown:
+            return np.empty((0, 6))
+        return np.array([(*box, float(tr.track_id), tr.score) for box, tr in zip(box_rows(shown), shown)],
+                        dtype=np.float64)
 
     # --- hooks ------------------------------------------------------------------------------
     def _pair_cost(
@@ -221,6 +230,10 @@ class MultiStageTracker:
         """(x_rel, y_rel) of each detection centre inside its ROI (the image when no ROI)."""
         if len(dets) == 0:
             return []
+        if rois is None and len(dets) <= SMALL_REL_ROWS:  # the same operations on Python floats
+            w, h = self._image_size
+            return [(((x1 + x2) * 0.5 - 0.0) / w, ((y1 + y2) * 0.5 - 0.0) / h)
+                    for x1, y1, x2, y2, _ in dets.tolist()]
         cx = (dets[:, 0] + dets[:, 2]) * 0.5
         cy = (dets[:, 1] + dets[:, 3]) * 0.5
         if rois is None:  # the image: origin 0, scalar sizes (same values, fewer arrays)
@@ -244,8 +257,12 @@ class MultiStageTracker:
         lost = [tr for tr in tracks if tr.state is TrackState.LOST]
         if not active or not lost:
             return tracks
+        if len(active) * len(lost) <= SCALAR_IOU_PAIRS:  # Python floats end to end
+            pairs = iou_row_pairs_above(box_rows(active), box_rows(lost), 0.85)
+        else:
+            pairs = iou_pairs_above(boxes_xyxy(active), boxes_xyxy(lost), 0.85)
         drop = set()
-        for i, j in iou_pairs_above(boxes_xyxy(active), boxes_xyxy(lost), 0.85):
+        for i, j in pairs:
             a, b = active[i], lost[j]
             drop.add(id(b) if a.age_s >= b.age_s else id(a))
         return [tr for tr in tracks if id(tr) not in drop]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Sequence
 
 import numpy as np
 
@@ -36,16 +37,29 @@ def iou_pairs_above(a: np.ndarray, b: np.ndarray, thresh: float) -> list[tuple[i
     """
     if len(a) * len(b) > SCALAR_IOU_PAIRS:
         return [(int(i), int(j)) for i, j in zip(*np.nonzero(iou_xyxy(a, b) > thresh))]
+    return iou_row_pairs_above(np.asarray(a).tolist(), np.asarray(b).tolist(), thresh)
+
+
+def iou_row_pairs_above(
+    a: Sequence[Sequence[float]], b: Sequence[Sequence[float]], thresh: float
+) -> list[tuple[int, int]]:
+    """:func:`iou_pairs_above` for boxes given as rows of Python floats (no array round trip).
+
+    ``min``/``max`` are conditional expressions (same values for finite boxes, no builtin call),
+    and with ``thresh >= 0`` a pair that does not overlap (IoU 0) is rejected before dividing."""
     out = []
-    b_rows = [(x1, y1, x2, y2, (x2 - x1) * (y2 - y1)) for x1, y1, x2, y2 in np.asarray(b).tolist()]
-    for i, (ax1, ay1, ax2, ay2) in enumerate(np.asarray(a).tolist()):
+    skip_disjoint = thresh >= 0.0
+    b_rows = [(x1, y1, x2, y2, (x2 - x1) * (y2 - y1)) for x1, y1, x2, y2 in b]
+    for i, (ax1, ay1, ax2, ay2) in enumerate(a):
         area_a = (ax2 - ax1) * (ay2 - ay1)
         for j, (bx1, by1, bx2, by2, area_b) in enumerate(b_rows):
-            iw = min(ax2, bx2) - max(ax1, bx1)
-            ih = min(ay2, by2) - max(ay1, by1)
-            inter = max(iw, 0.0) * max(ih, 0.0)
+            iw = (ax2 if ax2 < bx2 else bx2) - (ax1 if ax1 > bx1 else bx1)
+            ih = (ay2 if ay2 < by2 else by2) - (ay1 if ay1 > by1 else by1)
+            if skip_disjoint and (iw <= 0.0 or ih <= 0.0):
+                continue
+            inter = (iw if iw > 0.0 else 0.0) * (ih if ih > 0.0 else 0.0)
             union = area_a + area_b - inter
-            if union > 0 and inter / max(union, 1e-12) > thresh:
+            if union > 0 and inter / (union if union > 1e-12 else 1e-12) > thresh:
                 out.append((i, j))
     return out
 
@@ -71,6 +85,8 @@ def cxcywh_to_xyxy(boxes: np.ndarray) -> np.ndarray:
 
 
 _FIELDS = ("x1", "y1", "x2", "y2", "score")
+#: Up to this many detections :func:`validate_detections` checks on Python floats first.
+SMALL_VALIDATE_ROWS = 32
 
 
 def _where(t: float, frame: int | None) -> str:
@@ -109,6 +125,14 @@ def validate_detections(dets: np.ndarray | None, t: float, frame: int | None) ->
             f"{_where(t, frame)}: detections must be an (N, 5) array [x1, y1, x2, y2, score], "
             f"got shape {arr.shape}"
         )
+    if len(arr) <= SMALL_VALIDATE_ROWS and all(
+        -math.inf < x1 < x2 < math.inf and -math.inf < y1 < y2 < math.inf and 0.0 <= s <= 1.0
+        for x1, y1, x2, y2, s in arr.tolist()
+    ):
+        # The checks below on Python floats in one pass (a few detections: cheaper than ~10 numpy
+        # calls). Passing them implies every check below passes; a failure falls through to them
+        # so the error names the first bad detection and field exactly as before.
+        return arr
     finite = np.isfinite(arr)
     if not finite.all():
         row, col = np.argwhere(~finite)[0]

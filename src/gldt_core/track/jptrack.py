@@ -25,15 +25,16 @@ Table I value is a config field with the paper's default. What the paper leaves 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
 import numpy as np
 
 from gldt_core.track.base import MultiStageTracker, assign, iou_pair_cost
-from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
+from gldt_core.track.jcma import JcmaWeights, TrackMotion, is_small_pool, jcma_cost, jcma_cost_rows
 from gldt_core.track.pmr import c_time, fit_pmr, p_match_many
-from gldt_core.track.state import Track, TrackState, boxes_xyxy
+from gldt_core.track.state import Track, TrackState
 
 
 @dataclass(frozen=True)
@@ -82,6 +83,10 @@ class JPTrackConfig:
                            b_speed=self.beta1, b_direction=self.beta2, b_acceleration=self.beta3)
 
 
+#: Up to this many (lost track, candidate) pairs the PMR pre-gate runs on Python floats.
+SMALL_GATE_PAIRS = 64
+
+
 class JPTrack(MultiStageTracker):
     """``JPTrack(config).update(dets, t) -> (M, 6) [x1, y1, x2, y2, track_id, score]``."""
 
@@ -100,6 +105,12 @@ class JPTrack(MultiStageTracker):
         if c.use_pmr and c.pmr_backend == "sklearn":
             import sklearn.mixture  # noqa: F401  (import now, not on the first lost track)
 
+    def reset(self) -> None:
+        super().reset()
+        #: Per-frame cache of :meth:`_motion_row`: ``id(track) -> (hits, row)`` for time ``_motion_t``.
+        self._motion_rows: dict[int, tuple[int, tuple[float, ...]]] = {}
+        self._motion_t: float | None = None
+
     # --- stage costs ------------------------------------------------------------------------
     def _pair_cost(
         self, stage: str, tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, t: float
@@ -112,26 +123,54 @@ class JPTrack(MultiStageTracker):
         n_t, n_d = len(tracks), len(det_idx)
         if n_t == 0 or n_d == 0:
             return np.zeros((n_t, n_d)), np.zeros((n_t, n_d), dtype=bool)
-        motion = self._motion(tracks, t)
-        centres = (motion.pred_xyxy[:, :2] + motion.pred_xyxy[:, 2:4]) * 0.5
-        cost, gate = jcma_cost(motion, dets[det_idx, :4], centres, np.arange(n_t), self._weights)
+        if is_small_pool(n_t, n_d, n_t):  # Python rows straight from the per-frame cache
+            rows = self._motion_rows_for(tracks, t)
+            cost, gate = jcma_cost_rows(rows, [tr.hits >= 2 for tr in tracks], dets[det_idx, :4].tolist(),
+                                        [row[11:13] for row in rows], range(n_t), self._weights)
+        else:
+            motion, centres = self._motion(tracks, t)
+            cost, gate = jcma_cost(motion, dets[det_idx, :4], centres, np.arange(n_t), self._weights)
         thresh = {self.STAGE_HIGH: c.jcma_thresh_high, self.STAGE_LOW: c.jcma_thresh_low}.get(
             stage, c.jcma_thresh_tentative)
         return cost, gate & (cost <= thresh)
 
-    def _motion(self, tracks: Sequence[Track], t: float) -> TrackMotion:
-        ref = self.config.ref_fps
-        elapsed, v_avg, v_last, has = [], [], [], []
+    def _motion(self, tracks: Sequence[Track], t: float) -> tuple[TrackMotion, np.ndarray]:
+        """The pool's :class:`TrackMotion` and predicted centres ``(T, 2)`` (JCMA's context).
+
+        All per-track numbers go into one ``(T, 13)`` array built by a single ``np.array`` call,
+        and the fields are column views of it: at a few targets building six small arrays cost more
+        than the cost matrix. The box is :func:`state.boxes_xyxy`'s and the centre
+        ``(x1 + x2) * 0.5``, the same float operations as the vectorised forms."""
+        a = np.array(self._motion_rows_for(tracks, t), dtype=np.float64)
+        has = np.array([tr.hits >= 2 for tr in tracks], dtype=bool)
+        return TrackMotion(a[:, 0:4], a[:, 4:6], a[:, 6], a[:, 7:9], a[:, 9:11], has), a[:, 11:13]
+
+    def _motion_rows_for(self, tracks: Sequence[Track], t: float) -> list[tuple[float, ...]]:
+        """:meth:`_motion_row` of each track. A row is kept for the frame (stage 2 re-costs the
+        tracks stage 1 left unmatched); any update in between bumps ``hits`` and so invalidates it."""
+        if t != self._motion_t:
+            self._motion_rows.clear()
+            self._motion_t = t
+        cache = self._motion_rows
+        rows = []
         for tr in tracks:
-            elapsed.append(max((t - tr.last_update_t) * ref, 1e-6))
-            avg, last = self._velocities(tr)
-            v_avg.append(avg)
-            v_last.append(last)
-            has.append(tr.hits >= 2)
-        pred = boxes_xyxy(list(tracks))
-        last_c = np.array([tr.last_obs_cxcy for tr in tracks], dtype=np.float64)
-        return TrackMotion(pred, last_c, np.array(elapsed, dtype=np.float64), np.array(v_avg, dtype=np.float64),
-                           np.array(v_last, dtype=np.float64), np.array(has, dtype=bool))
+            hit = cache.get(id(tr))
+            if hit is None or hit[0] != tr.hits:
+                hit = (tr.hits, self._motion_row(tr, t))
+                cache[id(tr)] = hit
+            rows.append(hit[1])
+        return rows
+
+    def _motion_row(self, tr: Track, t: float) -> tuple[float, ...]:
+        """One track's row of :meth:`_motion`: predicted box, last observed centre, elapsed
+        reference frames, mean and last velocity, predicted centre."""
+        cx, cy, w, h = tr.kf.mean[:4].tolist()
+        half_w, half_h = 0.5 * w, 0.5 * h
+        x1, y1, x2, y2 = cx - half_w, cy - half_h, cx + half_w, cy + half_h
+        (ax, ay), (lx, ly) = self._velocities(tr)
+        ox, oy = tr.last_obs_xy
+        elapsed = max((t - tr.last_update_t) * self.config.ref_fps, 1e-6)
+        return (x1, y1, x2, y2, ox, oy, elapsed, ax, ay, lx, ly, (x1 + x2) * 0.5, (y1 + y2) * 0.5)
 
     def _velocities(self, tr: Track) -> tuple[tuple[float, float], tuple[float, float]]:
         """Mean (over ``state.MOTION_WINDOW`` observations) and last filtered velocity, in px per
@@ -147,8 +186,10 @@ class JPTrack(MultiStageTracker):
         t: float, rel: list[tuple[float, float]], updated: set[int],
     ) -> tuple[np.ndarray, np.ndarray]:
         c = self.config
-        cand = np.concatenate([rest_high, rest_low]) if c.use_pmr and c.pmr_use_low else rest_high
-        if not c.use_pmr or not lost or len(cand) == 0:
+        if not c.use_pmr or not lost:
+            return rest_high, rest_low
+        cand = np.concatenate([rest_high, rest_low]) if c.pmr_use_low else rest_high
+        if len(cand) == 0:
             return rest_high, rest_low
         # Gaps shorter than pmr_min_lost_s are JCMA's job (the lost track is in its first-stage
         # pool every frame); modelling them would fit a mixture for every single missed frame.
@@ -156,11 +197,10 @@ class JPTrack(MultiStageTracker):
         if not long_lost and c.tau_t >= 0.0:
             return rest_high, rest_low  # every score would be 0: nothing can pass the gate
         centres = (dets[cand, :2] + dets[cand, 2:4]) * 0.5
-        score = np.zeros((len(lost), len(cand)))
         rows = []
         if long_lost:
             worth = self._worth_modelling([lost[i] for i in long_lost], centres, t)
-            rows = [i for i, w in zip(long_lost, worth.tolist()) if w]
+            rows = [i for i, w in zip(long_lost, worth) if w]
         if not rows and c.tau_t >= 0.0:
             return rest_high, rest_low  # every score is 0, nothing can pass the gate
         models = []
@@ -171,9 +211,13 @@ class JPTrack(MultiStageTracker):
                                       backend=c.pmr_backend)
                 self.pmr_fits += 1
             models.append(tr.pmr_model)
+        score = np.zeros((len(lost), len(cand)))
         if rows:
             p = p_match_many(models, centres, t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std)
-            score[rows] = p * np.array([c_time(m, t, c.gamma) for m in models])[:, None]
+            final = p * np.array([c_time(m, t, c.gamma) for m in models])[:, None]
+            if c.tau_t >= 0.0 and not (final > c.tau_t).any():
+                return rest_high, rest_low  # no candidate passes the gate (most frames)
+            score[rows] = final
         used = set()
         for r, col in assign(-score, score > c.tau_t):
             tr, d = lost[r], int(cand[col])
@@ -187,19 +231,34 @@ class JPTrack(MultiStageTracker):
         keep_low = np.asarray([d for d in rest_low if d not in used], dtype=np.int64)
         return keep_high, keep_low
 
-    def _worth_modelling(self, lost: list[Track], centres: np.ndarray, t: float) -> np.ndarray:
+    def _worth_modelling(self, lost: list[Track], centres: np.ndarray, t: float) -> list[bool]:
         """Cheap pre-gate, one boolean per lost track: fit/evaluate a mixture only if some candidate
         lies within a generous radius of the track's Kalman prediction (3 floor sigmas, half the
         distance travelled since the loss, and two box sizes). P_final > tau_t needs the detection
         within about one sigma of a component, and components sit near the constant-velocity
         prediction, so this rejects only hopeless pairs; it keeps EM off frames where nothing is
-        near a lost track."""
+        near a lost track.
+
+        Up to ``SMALL_GATE_PAIRS`` (track, candidate) pairs the test runs on Python floats (the same
+        operations; the speed's hypot stays numpy's), else vectorised."""
         c = self.config
         means = np.array([tr.kf.mean[:6] for tr in lost])
-        steps = (t - np.array([tr.last_update_t for tr in lost])) * c.ref_fps
-        size = 0.5 * (means[:, 2] + means[:, 3])
         speed = np.hypot(means[:, 4], means[:, 5]) / c.ref_fps
-        floor = (c.pmr_pos_std_size * size) ** 2 + (c.pmr_vel_std * steps) ** 2
-        radius = 3.0 * np.sqrt(floor) + 0.5 * speed * steps + 2.0 * size
-        d2 = np.sum((centres[None, :, :] - means[:, None, :2]) ** 2, axis=2)
-        return np.any(d2 <= (radius * radius)[:, None], axis=1)
+        if len(lost) * len(centres) > SMALL_GATE_PAIRS:
+            steps = (t - np.array([tr.last_update_t for tr in lost])) * c.ref_fps
+            size = 0.5 * (means[:, 2] + means[:, 3])
+            floor = (c.pmr_pos_std_size * size) ** 2 + (c.pmr_vel_std * steps) ** 2
+            radius = 3.0 * np.sqrt(floor) + 0.5 * speed * steps + 2.0 * size
+            d2 = np.sum((centres[None, :, :] - means[:, None, :2]) ** 2, axis=2)
+            return np.any(d2 <= (radius * radius)[:, None], axis=1).tolist()
+        pts = centres.tolist()
+        worth = []
+        for tr, (mx, my, mw, mh, _, _), sp in zip(lost, means.tolist(), speed.tolist()):
+            steps = (t - tr.last_update_t) * c.ref_fps
+            size = 0.5 * (mw + mh)
+            pos_std = c.pmr_pos_std_size * size
+            vel_std = c.pmr_vel_std * steps
+            radius = 3.0 * math.sqrt(pos_std * pos_std + vel_std * vel_std) + 0.5 * sp * steps + 2.0 * size
+            r2 = radius * radius
+            worth.append(any((px - mx) * (px - mx) + (py - my) * (py - my) <= r2 for px, py in pts))
+        return worth

@@ -18,6 +18,8 @@ filterpy filters at 3 and 50 tracks (the "Kalman" line of its output).
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 STD_WEIGHT_POSITION = 1.0 / 20.0
@@ -35,8 +37,6 @@ def _size_std(w: float, h: float, weight: float) -> np.ndarray:
     return np.array([sw, sh, sw, sh])
 
 
-_DIAG = np.arange(8)
-_DIAG4 = np.arange(4)
 #: Columns w, h, w, h of the state: the per-coordinate sizes the noise scales with.
 _WHWH = np.array([2, 3, 2, 3])
 #: Per state entry: the size column its noise scales with, the std weight and the std floor.
@@ -87,7 +87,7 @@ class ConstantVelocityKalman:
         mean[2:4] = np.maximum(mean[2:4], 1e-3)
         cov[:4, :] += dt * cov[4:, :]
         cov[:, :4] += dt * cov[:, 4:]
-        cov[_DIAG, _DIAG] += q
+        cov.reshape(64)[::9] += q  # the diagonal (cov is a fresh contiguous copy)
         return mean, cov
 
     def predict(self, dt: float) -> None:
@@ -130,7 +130,7 @@ def predict_many(filters: list[ConstantVelocityKalman], dts: np.ndarray) -> None
         unit = np.ones((n, 8))
         unit[:, 4:] = ref[:, None]
     else:
-        unit = np.array([1.0, 1.0, 1.0, 1.0, ref, ref, ref, ref])
+        unit = _noise_unit(ref)
     q = (np.maximum(_NOISE_FLOOR, _NOISE_WEIGHT * means[:, _NOISE_SIZE]) * unit) ** 2
     q *= steps[:, None]
     dt_col = dt[:, None]
@@ -143,10 +143,19 @@ def predict_many(filters: list[ConstantVelocityKalman], dts: np.ndarray) -> None
     dt_3 = dt_col[:, :, None]
     covs[:, :4, :] += dt_3 * covs[:, 4:, :]
     covs[:, :, :4] += dt_3 * covs[:, :, 4:]
-    covs[:, _DIAG, _DIAG] += q
+    covs.reshape(n, 64)[:, ::9] += q  # the diagonals, as a strided view (no fancy indexing)
     for f, m, c in zip(filters, means, covs):
         f.mean = m
         f.covariance = c
+
+
+@functools.lru_cache(maxsize=8)
+def _noise_unit(ref_fps: float) -> np.ndarray:
+    """``[1, 1, 1, 1, ref, ref, ref, ref]``: the per-entry factor of the process noise stds, built
+    once per reference rate (read-only)."""
+    out = np.array([1.0, 1.0, 1.0, 1.0, ref_fps, ref_fps, ref_fps, ref_fps])
+    out.flags.writeable = False
+    return out
 
 
 def _common_ref_fps(filters: list[ConstantVelocityKalman]) -> float | np.ndarray:
@@ -168,7 +177,7 @@ def update_many(filters: list[ConstantVelocityKalman], boxes_cxcywh: np.ndarray)
     covs = np.array([f.covariance for f in filters])
     r = np.maximum(MIN_STD_PX, STD_WEIGHT_POSITION * means[:, _WHWH]) ** 2
     s = covs[:, :4, :4].copy()
-    s[:, _DIAG4, _DIAG4] += r
+    s.reshape(n, 16)[:, ::5] += r  # the diagonals, as a strided view (no fancy indexing)
     gain = np.linalg.solve(s, covs[:, :4, :]).transpose(0, 2, 1)  # (n, 8, 4)
     innovation = np.asarray(boxes_cxcywh, dtype=np.float64) - means[:, :4]
     means = means + np.einsum("nij,nj->ni", gain, innovation)

@@ -185,6 +185,8 @@ def p_match_many(
     if not models:
         return np.zeros((0, len(centers)))
     counts = [len(m.weights) for m in models]
+    if sum(counts) * len(centers) <= SMALL_MATCH_PAIRS:
+        return _p_match_small(models, centers, t, ref_fps, pos_std_size, vel_std)
     mean_pv = np.concatenate([m.mean_pv for m in models]) if len(models) > 1 else models[0].mean_pv
     cov_pv = np.concatenate([m.cov_pv for m in models]) if len(models) > 1 else models[0].cov_pv
     steps_m = [max(t - m.t_loss, 0.0) * ref_fps for m in models]
@@ -211,6 +213,53 @@ def p_match_many(
         return (models[0].weights @ like)[None, :]
     weighted = np.concatenate([m.weights for m in models])[:, None] * like
     return np.add.reduceat(weighted, np.cumsum([0] + counts[:-1]), axis=0)
+
+
+#: Up to this many (component, detection) pairs, :func:`p_match_many` runs on Python floats.
+SMALL_MATCH_PAIRS = 32
+
+
+def _p_match_small(
+    models: list[PmrModel], centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float,
+    vel_std: float,
+) -> np.ndarray:
+    """:func:`p_match_many` for a few components and detections, on Python floats: the stacked
+    path's operations in the same order (one batched np.exp, so the same exp), without its ~25
+    numpy calls on 1-4 element arrays. The mixture sum is the stacked path's
+    ``w_0 l_0 + w_1 l_1``; the one-model numpy shortcut ``weights @ like`` is a BLAS product that
+    may round its last bit differently (FMA); tests/test_track_small_pools.py compares them."""
+    pts = centers.tolist()
+    exponents: list[float] = []
+    weights: list[list[float]] = []
+    for m in models:
+        steps = max(t - m.t_loss, 0.0) * ref_fps
+        floor = (pos_std_size * m.size) ** 2 + (vel_std * steps) ** 2
+        s2 = steps * steps
+        weights.append(m.weights.tolist())
+        for (mx, my, mvx, mvy), c in zip(m.mean_pv.tolist(), m.cov_pv.tolist()):
+            mu_x = mx + steps * mvx
+            mu_y = my + steps * mvy
+            sxx = c[0][0] + steps * (c[0][2] + c[2][0]) + s2 * c[2][2] + floor
+            syy = c[1][1] + steps * (c[1][3] + c[3][1]) + s2 * c[3][3] + floor
+            sxy = c[0][1] + steps * (c[0][3] + c[2][1]) + s2 * c[2][3]
+            det = sxx * syy - sxy * sxy
+            if det < 1e-12:
+                det = 1e-12
+            for px, py in pts:
+                dx = px - mu_x
+                dy = py - mu_y
+                exponents.append(-0.5 * ((syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det))
+    like = np.exp(np.array(exponents)).tolist()
+    n_d = len(pts)
+    out = []
+    row = 0
+    for w in weights:
+        acc = [w[0] * v for v in like[row * n_d:(row + 1) * n_d]]
+        for k in range(1, len(w)):
+            acc = [a + w[k] * v for a, v in zip(acc, like[(row + k) * n_d:(row + k + 1) * n_d])]
+        out.append(acc)
+        row += len(w)
+    return np.array(out).reshape(len(models), n_d)
 
 
 @functools.lru_cache(maxsize=1024)

@@ -56,7 +56,8 @@ class Track:
         self.lost_since_t: float | None = None
         #: Observed centres (cx, cy) and KF velocities at each update, newest last.
         self.history: deque[tuple[float, ...]] = deque(maxlen=history_len)
-        self.last_obs_cxcy = self.kf.mean[:2].copy()
+        #: Last observed centre ``(cx, cy)`` as Python floats (see ``last_obs_cxcy``).
+        self.last_obs_xy: tuple[float, float] = tuple(self.kf.mean[:2].tolist())
         self._recent_v: deque[tuple[float, float]] = deque()
         self._v_sum = [0.0, 0.0]
         self._record(t, rel_xy)
@@ -79,6 +80,11 @@ class Track:
     def covariance(self) -> np.ndarray:
         """8x8 covariance of the Kalman state ``[cx, cy, w, h, vcx, vcy, vw, vh]``."""
         return self.kf.covariance.copy()
+
+    @property
+    def last_obs_cxcy(self) -> np.ndarray:
+        """Last observed centre ``[cx, cy]`` (the detection's, not the filter's)."""
+        return np.array(self.last_obs_xy)
 
     @property
     def age_s(self) -> float:
@@ -105,13 +111,19 @@ class Track:
         """Fuse a matched detection at ``t`` (the filter must already be at ``t``)."""
         x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
         self.kf.update(np.array([(x1 + x2) * 0.5, (y1 + y2) * 0.5, x2 - x1, y2 - y1]))
-        self.after_update(box_xyxy, score, t, rel_xy)
+        self._after_update(x1, y1, x2, y2, float(score), t, rel_xy)
 
     def after_update(self, box_xyxy: np.ndarray, score: float, t: float, rel_xy: tuple[float, float]) -> None:
         """Bookkeeping of an update whose filter step was already done (see update_tracks)."""
         x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
-        self.last_obs_cxcy = np.array([(x1 + x2) * 0.5, (y1 + y2) * 0.5])
-        self.score = float(score)
+        self._after_update(x1, y1, x2, y2, float(score), t, rel_xy)
+
+    def _after_update(self, x1: float, y1: float, x2: float, y2: float, score: float, t: float,
+                      rel_xy: tuple[float, float]) -> None:
+        """``after_update`` on Python floats (callers that already unpacked the box skip an array
+        round trip per track)."""
+        self.last_obs_xy = ((x1 + x2) * 0.5, (y1 + y2) * 0.5)
+        self.score = score
         self.hits += 1
         self.frames_since_update = 0
         self.last_update_t = t
@@ -129,8 +141,8 @@ class Track:
 
     def _record(self, t: float, rel_xy: tuple[float, float]) -> None:
         cx, cy, w, h, vx, vy = self.kf.mean[:6].tolist()
-        self.history.append((t, float(self.last_obs_cxcy[0]), float(self.last_obs_cxcy[1]), rel_xy[0],
-                             rel_xy[1], vx, vy, w, h))
+        obs_x, obs_y = self.last_obs_xy
+        self.history.append((t, obs_x, obs_y, rel_xy[0], rel_xy[1], vx, vy, w, h))
         # Running mean of the last MOTION_WINDOW filtered velocities (JCMA's v_avg), O(1) per update.
         self._recent_v.append((vx, vy))
         self._v_sum[0] += vx
@@ -154,11 +166,27 @@ class Track:
         return np.asarray(self.history, dtype=np.float64)
 
 
+#: Up to this many tracks :func:`boxes_xyxy` converts on Python floats.
+SMALL_BOX_COUNT = 8
+
+
+def box_rows(tracks: list[Track]) -> list[tuple[float, float, float, float]]:
+    """``tr.box_xyxy`` of each track as Python floats (the same operations as the property)."""
+    rows = []
+    for tr in tracks:
+        cx, cy, w, h = tr.kf.mean[:4].tolist()
+        half_w, half_h = 0.5 * w, 0.5 * h
+        rows.append((cx - half_w, cy - half_h, cx + half_w, cy + half_h))
+    return rows
+
+
 def boxes_xyxy(tracks: list[Track]) -> np.ndarray:
     """``(len(tracks), 4)`` array of ``tr.box_xyxy``, converted in one vectorised step (the same
     IEEE operations as the property, without a small array per track)."""
     if not tracks:
         return np.zeros((0, 4))
+    if len(tracks) <= SMALL_BOX_COUNT:  # Python floats: no numpy temporaries for a few boxes
+        return np.array(box_rows(tracks), dtype=np.float64)
     m = np.array([tr.kf.mean[:4] for tr in tracks], dtype=np.float64)
     half_w = 0.5 * m[:, 2:4]
     out = np.empty((len(tracks), 4))
@@ -183,10 +211,10 @@ def update_tracks(
     """``update`` for several (track, detection) pairs with one batched Kalman step."""
     if not tracks:
         return
-    b = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
-    measured = np.empty((len(b), 4))
-    measured[:, :2] = (b[:, :2] + b[:, 2:]) * 0.5
-    measured[:, 2:] = b[:, 2:] - b[:, :2]
+    boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4).tolist()
+    # [cx, cy, w, h] on Python floats: the operations of the vectorised conversion, and the boxes
+    # are needed as floats for the bookkeeping anyway.
+    measured = np.array([((x1 + x2) * 0.5, (y1 + y2) * 0.5, x2 - x1, y2 - y1) for x1, y1, x2, y2 in boxes])
     update_many([tr.kf for tr in tracks], measured)
-    for tr, box, score, rel in zip(tracks, b, scores, rels):
-        tr.after_update(box, float(score), t, rel)
+    for tr, (x1, y1, x2, y2), score, rel in zip(tracks, boxes, np.asarray(scores, dtype=np.float64).tolist(), rels):
+        tr._after_update(x1, y1, x2, y2, score, t, rel)
