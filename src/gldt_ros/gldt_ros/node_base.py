@@ -75,6 +75,13 @@ class GldtNode(Node):
 
         return wrapper
 
+    def warn_throttled(self, key: str, text: str) -> None:
+        """Log a warning; repeats of the same ``key`` at most once a second, with their count (a
+        fault that lasts, such as a detector that stays away, must not flood the log)."""
+        line = self._error_lines.text_for(key, text)
+        if line is not None:
+            self.get_logger().warning(line)
+
     def warn_once(self, key: str, text: str) -> None:
         """Log a warning the first time ``key`` is seen (e.g. an unexpected encoding)."""
         if key not in self._warned:

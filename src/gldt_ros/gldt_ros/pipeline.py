@@ -80,9 +80,20 @@ LOCKSTEP_OVERRIDES = {"mode_scheduler": ["-p", "lockstep:=true"], "frame_pair_bu
 
 
 def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
-    """``--ros-args`` of one node: the parameter file plus the lockstep overrides it needs."""
+    """``--ros-args`` of one node: the parameter file plus the lockstep overrides it needs.
+
+    In lockstep the scheduler gives up waiting for a LOCAL frame's detections when the player
+    gives up waiting for its tracks (``--frame-timeout``): past that the player has moved on, and
+    a scheduler still waiting (say for a local detector that was killed) would let the frames
+    queue up behind it faster than it plans them.
+    """
     ros_args = ["--ros-args", "--params-file", str(args.params)]
-    return ros_args + (LOCKSTEP_OVERRIDES.get(name, []) if args.lockstep else [])
+    if not args.lockstep:
+        return ros_args
+    extra = list(LOCKSTEP_OVERRIDES.get(name, []))
+    if name == "mode_scheduler":
+        extra += ["-p", f"report_timeout:={min(max(args.frame_timeout, 0.1), 600.0)}"]
+    return ros_args + extra
 
 
 def node_command(name: str, args: argparse.Namespace) -> list[str]:

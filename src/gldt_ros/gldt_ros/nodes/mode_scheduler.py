@@ -58,9 +58,19 @@ class ModeSchedulerNode(GldtNode):
         self._drain()
 
     def _check_report_timeout(self) -> None:
-        """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph."""
+        """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph.
+
+        Frames that queued up meanwhile are stale (the frame buffer keeps only the newest few, so
+        their decisions could no longer be served, and each LOCAL one would wait again): only the
+        newest is planned."""
         if self._awaiting_report is not None and time.monotonic() - self._awaiting_since > float(self.param("report_timeout")):
-            self.warn_once("report-timeout", f"no detections for LOCAL frame {self._awaiting_report}; planning on without them")
+            stale = len(self._queue) - 1
+            skipped = f"; skipping {stale} stale queued frame(s)" if stale > 0 else ""
+            self.warn_throttled(
+                "report-timeout", f"no detections for LOCAL frame {self._awaiting_report}; planning on without them{skipped}"
+            )
+            while len(self._queue) > 1:
+                self._queue.popleft()
             self._awaiting_report = None
             self._drain()
 
