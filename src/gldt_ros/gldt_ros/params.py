@@ -72,7 +72,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ParamSpec("local_frames", DEFAULT_N_LOCAL, "N_l: most frames in local mode before a global refresh", 1, 10000),
         ParamSpec("miss_frames", DEFAULT_N_MISS, "N_m: local frames without any detection before returning to global", 1, 10000),
         ParamSpec("roi_size", DEFAULT_ROI_SIZE, "Side of a local-detection ROI [px]", 32, 2048),
-        ParamSpec("report_timeout", 5.0, "Lockstep: seconds to wait for a LOCAL frame's detections before planning on", 0.1, 600.0),
+        ParamSpec("report_timeout", 5.0, "Lockstep: seconds to wait for a LOCAL frame's detections before planning on (pipeline --lockstep sets its --frame-timeout)", 0.1, 600.0),
         ParamSpec("lockstep", False, "Plan a frame only after the previous LOCAL frame's detections arrived (deterministic replay)"),
         _DIAG_PERIOD,
     ),
