@@ -29,6 +29,8 @@ from gldt_ros.params import SCHEMA, ParamSpec
 
 #: How often a node checks whether its matched peers changed (a cheap count per topic).
 LINK_CHECK_PERIOD_S = 0.1
+#: A node's ``/diagnostics`` status is named this prefix plus the node name.
+STATUS_NAME_PREFIX = "gldt/"
 
 
 class GldtNode(Node):
@@ -101,7 +103,7 @@ class GldtNode(Node):
         mean_ms = 1000.0 * sum(self._processing) / len(self._processing) if self._processing else 0.0
         status = DiagnosticStatus(
             level=DiagnosticStatus.OK if self.frames_dropped == 0 else DiagnosticStatus.WARN,
-            name=f"gldt/{self.get_name()}",
+            name=f"{STATUS_NAME_PREFIX}{self.get_name()}",
             hardware_id=self.get_namespace(),
             message="ok" if self.frames_dropped == 0 else f"{self.frames_dropped} input(s) dropped",
             values=[

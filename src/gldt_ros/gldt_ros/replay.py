@@ -7,13 +7,14 @@ import threading
 import time
 from typing import Callable
 
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from gldt_ros import qos, topics
 from gldt_ros.bag_io import IMAGE_TYPES_SET, McapRecorder, bag_topics, header_stamp_ns, iter_bag, message_class
 from gldt_ros.graph_links import missing_links, own_link_counts, parse_link_counts, reporting_nodes_missing
+from gldt_ros.node_base import STATUS_NAME_PREFIX
 from gldt_ros.pipeline import NODES
 
 #: Subscriptions each node creates last, once its models and state are ready: the graph is up when
@@ -37,9 +38,6 @@ READY_PUBLISHERS = {
     topics.DETECTIONS: 2,  # global_detector, local_detector
     topics.TRACKS: 1,  # jptrack_tracker
 }
-
-#: Prefix of the node statuses in ``/diagnostics`` (see ``GldtNode``).
-_STATUS_PREFIX = "gldt/"
 
 RECORDED_TOPICS = {
     topics.TRACKS: "gldt_msgs/msg/TrackArray",
@@ -65,9 +63,10 @@ class GraphDriver(Node):
                 message_class(msgtype), topic, self._make_record_callback(topic, msgtype), qos.RELIABLE, raw=True,
             )
         self._bag_publishers: dict[str, object] = {}
-        # Each node's matched-peer counts from its diagnostics (latched, so none is missed).
-        self._link_reports: dict[str, dict[str, int]] = {}
-        self._link_reports_lock = threading.Lock()
+        # Each node's latest /diagnostics status (latched, so none is missed): its matched peers
+        # tell when the graph is linked, its counters go into reports.
+        self._statuses: dict[str, DiagnosticStatus] = {}
+        self._statuses_lock = threading.Lock()
         self.create_subscription(
             DiagnosticArray,
             topics.DIAGNOSTICS,
@@ -77,11 +76,15 @@ class GraphDriver(Node):
 
     def _on_diagnostics(self, array: DiagnosticArray) -> None:
         for status in array.status:
-            if status.name.startswith(_STATUS_PREFIX) and status.hardware_id == self.get_namespace():
-                counts = parse_link_counts(status)
-                if counts:
-                    with self._link_reports_lock:
-                        self._link_reports[status.name[len(_STATUS_PREFIX):]] = counts
+            if status.name.startswith(STATUS_NAME_PREFIX) and status.hardware_id == self.get_namespace():
+                with self._statuses_lock:
+                    self._statuses[status.name[len(STATUS_NAME_PREFIX):]] = status
+
+    def node_statuses(self) -> dict[str, dict[str, str]]:
+        """The latest ``/diagnostics`` key/values of each node of this graph (``inputs``, ...)."""
+        with self._statuses_lock:
+            statuses = dict(self._statuses)
+        return {name: {pair.key: pair.value for pair in status.values} for name, status in statuses.items()}
 
     def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
         def callback(raw: bytes) -> None:
@@ -164,8 +167,9 @@ class GraphDriver(Node):
         deadline = time.monotonic() + timeout_s
         missing: list[str] = []
         while not stop.is_set():
-            with self._link_reports_lock:
-                reports = dict(self._link_reports)
+            with self._statuses_lock:
+                statuses = dict(self._statuses)
+            reports = {name: counts for name, status in statuses.items() if (counts := parse_link_counts(status))}
             silent = reporting_nodes_missing(node_names, reports)
             reports[self.get_name()] = own_link_counts(self)
             missing = [f"{name}: no link report yet" for name in silent] + missing_links(self, reports)

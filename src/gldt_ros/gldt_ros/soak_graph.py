@@ -364,18 +364,6 @@ class TrackWindow:
         return stats
 
 
-class DiagnosticsLatest:
-    """Latest ``/diagnostics`` key/values of each GL-DT node (``inputs``, ``dropped``, ...)."""
-
-    def __init__(self) -> None:
-        self.latest: dict[str, dict[str, str]] = {}
-
-    def on_diagnostics(self, message: Any) -> None:
-        for status in message.status:
-            if status.name.startswith("gldt/"):
-                self.latest[status.name.split("/", 1)[1]] = {kv.key: kv.value for kv in status.values}
-
-
 def node_rss(processes: dict[str, Any]) -> tuple[dict[str, int | None], dict[str, int]]:
     """Resident bytes and pid of every node process (None for one that is gone)."""
     import psutil
@@ -506,7 +494,6 @@ def main(argv: Sequence[str] | None = None) -> int:
 def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, Any]:
     """Start the graph, measure start-up, play the bag in a loop while sampling; return the report."""
     import rclpy
-    from diagnostic_msgs.msg import DiagnosticArray
     from gldt_msgs.msg import TrackArray, TrackPredictions
     from rclpy.executors import MultiThreadedExecutor
 
@@ -524,10 +511,9 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     use_graph_dds_profile()
     rclpy.init()
     driver = SoakDriver(pargs)
-    window, diagnostics = TrackWindow(), DiagnosticsLatest()
+    window = TrackWindow()
     driver.create_subscription(TrackArray, topics.TRACKS, window.on_tracks, qos.RELIABLE)
     driver.create_subscription(TrackPredictions, topics.TRACK_PREDICTIONS, window.on_predictions, qos.RELIABLE)
-    driver.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, diagnostics.on_diagnostics, 10)
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(driver)
     spin = threading.Thread(target=executor.spin, daemon=True)
@@ -543,7 +529,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
         children = NodeProcesses(pargs)
         startup["nodes"] = wait_ready_per_node(driver, children, launch, pargs.startup_timeout)
         if not driver.wait_for_nodes(list(NODES), pargs.startup_timeout, children.dead):
-            return build_report(samples, args.warmup, startup, replay, diagnostics.latest)
+            return build_report(samples, args.warmup, startup, replay, driver.node_statuses())
         ready = time.monotonic()
         startup["ready_s"] = ready - launch
         children.supervising = args.max_restarts > 0
@@ -583,7 +569,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
         driver.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
-    return build_report(samples, args.warmup, startup, replay, diagnostics.latest)
+    return build_report(samples, args.warmup, startup, replay, driver.node_statuses())
 
 
 def take_sample(t_s: float, children: Any, published: int, driver: Any, window: TrackWindow) -> Sample:
