@@ -34,7 +34,7 @@ import numpy as np
 from gldt_core.track.base import MultiStageTracker, assign, iou_pair_cost
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, is_small_pool, jcma_cost, jcma_cost_rows
 from gldt_core.track.pmr import c_time, fit_pmr, p_match_many
-from gldt_core.track.state import Track, TrackState
+from gldt_core.track.state import Track, TrackState, box_row
 
 
 @dataclass(frozen=True)
@@ -164,9 +164,7 @@ class JPTrack(MultiStageTracker):
     def _motion_row(self, tr: Track, t: float) -> tuple[float, ...]:
         """One track's row of :meth:`_motion`: predicted box, last observed centre, elapsed
         reference frames, mean and last velocity, predicted centre."""
-        cx, cy, w, h = tr.kf.mean[:4].tolist()
-        half_w, half_h = 0.5 * w, 0.5 * h
-        x1, y1, x2, y2 = cx - half_w, cy - half_h, cx + half_w, cy + half_h
+        x1, y1, x2, y2 = box_row(tr)
         (ax, ay), (lx, ly) = self._velocities(tr)
         ox, oy = tr.last_obs_xy
         elapsed = max((t - tr.last_update_t) * self.config.ref_fps, 1e-6)

@@ -170,14 +170,16 @@ class Track:
 SMALL_BOX_COUNT = 8
 
 
+def box_row(tr: Track) -> tuple[float, float, float, float]:
+    """``tr.box_xyxy`` as Python floats (the same operations as the property)."""
+    cx, cy, w, h = tr.kf.mean[:4].tolist()
+    half_w, half_h = 0.5 * w, 0.5 * h
+    return (cx - half_w, cy - half_h, cx + half_w, cy + half_h)
+
+
 def box_rows(tracks: list[Track]) -> list[tuple[float, float, float, float]]:
-    """``tr.box_xyxy`` of each track as Python floats (the same operations as the property)."""
-    rows = []
-    for tr in tracks:
-        cx, cy, w, h = tr.kf.mean[:4].tolist()
-        half_w, half_h = 0.5 * w, 0.5 * h
-        rows.append((cx - half_w, cy - half_h, cx + half_w, cy + half_h))
-    return rows
+    """:func:`box_row` of each track."""
+    return [box_row(tr) for tr in tracks]
 
 
 def boxes_xyxy(tracks: list[Track]) -> np.ndarray:
