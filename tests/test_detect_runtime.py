@@ -51,6 +51,18 @@ def test_global_detect_contract(global_detector: GlobalDetector) -> None:
     assert (np.diff(dets[:, 4]) <= 0).all()  # sorted by score
 
 
+def test_unoptimized_global_session_has_the_same_geometry_and_boxes(global_detector: GlobalDetector) -> None:
+    """The frame buffer opens the model without graph optimisation (faster start): it must
+    letterbox exactly as the detector does, and the model must mean the same."""
+    geometry = GlobalDetector(score_threshold=0.0, num_threads=1, optimize_graph=False)
+    for width, height in ((1920, 1080), (1280, 720), (333, 211)):
+        assert geometry.input_size(width, height) == global_detector.input_size(width, height)
+    rng = np.random.default_rng(5)
+    feed = {name: rng.random((1, 3, 384, 640), dtype=np.float32) for name in global_detector.input_names}
+    (raw_optimized,), (raw_plain,) = global_detector.session.run(None, feed), geometry.session.run(None, feed)
+    np.testing.assert_allclose(raw_plain, raw_optimized, rtol=1e-3, atol=1e-3)
+
+
 def test_global_accepts_grayscale_and_first_frame(global_detector: GlobalDetector) -> None:
     gray = textured_frame(640, 512)[..., 0]
     a = global_detector.detect(None, gray)

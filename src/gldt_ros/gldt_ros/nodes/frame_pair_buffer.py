@@ -31,8 +31,11 @@ class FramePairBuffer(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("frame_pair_buffer", **kwargs)
         # The global detector's own preprocessing (letterbox to its input), so the pair the
-        # detector node receives is exactly what it would have made from the full frames.
-        self.global_input = GlobalDetector(model_path=self.param("global_model_path") or None, num_threads=1)
+        # detector node receives is exactly what it would have made from the full frames. Only
+        # its geometry is used here, so its graph is not optimised (a faster start and restart).
+        self.global_input = GlobalDetector(
+            model_path=self.param("global_model_path") or None, num_threads=1, optimize_graph=False
+        )
         self.crop = LocalDetector.crop
         self._frames: OrderedDict[int, tuple[Any, np.ndarray]] = OrderedDict()
         self._index = 0
