@@ -13,9 +13,11 @@ from gldt_msgs.msg import SchedulerState, Track, TrackPredictions  # noqa: E402
 from gldt_ros.nodes import mode_scheduler  # noqa: E402
 
 
-def predictions(frame: int) -> TrackPredictions:
-    """One confirmed track in mid-image, for frame ``frame`` of a 30 Hz 1920x1080 stream."""
-    message = TrackPredictions(frame_index=frame, width=1920, height=1080)
+def predictions(frame: int, last_tracked: int | None = None) -> TrackPredictions:
+    """One confirmed track in mid-image, for frame ``frame`` of a 30 Hz 1920x1080 stream, from a
+    tracker that tracked every frame before it unless ``last_tracked`` says otherwise."""
+    last_tracked = frame - 1 if last_tracked is None else last_tracked
+    message = TrackPredictions(frame_index=frame, width=1920, height=1080, last_tracked_frame_index=last_tracked)
     message.header.stamp.sec, message.header.stamp.nanosec = divmod((frame + 1) * 33_333_333, 1_000_000_000)
     message.tracks = [Track(id=1, state=Track.STATE_CONFIRMED, center_x=960.0, center_y=540.0, width=20.0, height=12.0)]
     return message
@@ -31,12 +33,16 @@ class Published:
         self.decisions.append(message)
 
 
+def lockstep_scheduler(report_timeout: float) -> mode_scheduler.ModeSchedulerNode:
+    return mode_scheduler.create_node(
+        cli_args=["--ros-args", "-p", "lockstep:=true", "-p", "global_frames:=1", "-p", f"report_timeout:={report_timeout}"]
+    )
+
+
 def test_after_a_report_timeout_only_the_newest_queued_frame_is_planned() -> None:
     rclpy.init()
     try:
-        node = mode_scheduler.create_node(
-            cli_args=["--ros-args", "-p", "lockstep:=true", "-p", "global_frames:=1", "-p", "report_timeout:=0.2"]
-        )
+        node = lockstep_scheduler(report_timeout=0.2)
         published = Published()
         node.state_publisher = published
         node.on_predictions(predictions(0))  # GLOBAL (N_g = 1)
@@ -50,6 +56,25 @@ def test_after_a_report_timeout_only_the_newest_queued_frame_is_planned() -> Non
         assert [int(d.frame_index) for d in published.decisions] == [0, 1, 5], (
             "frames 2-4 are stale (no longer buffered upstream): only the newest is planned"
         )
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
+def test_a_frame_the_tracker_moved_past_untracked_is_not_waited_for() -> None:
+    """Issue 9: a local detector killed mid-frame must not stall the restarted graph for
+    ``report_timeout``: the tracker's next predictions say the frame was given up."""
+    rclpy.init()
+    try:
+        node = lockstep_scheduler(report_timeout=600.0)
+        published = Published()
+        node.state_publisher = published
+        node.on_predictions(predictions(0))  # GLOBAL
+        node.on_predictions(predictions(1))  # LOCAL: waits for its detections
+        node.on_predictions(predictions(2, last_tracked=1))  # frame 1 was tracked: its report is on its way
+        assert len(published.decisions) == 2, "the tracker has frame 1's detections, so the scheduler gets them too"
+        node.on_predictions(predictions(3, last_tracked=0))  # the tracker never tracked frame 1: given up
+        assert [int(d.frame_index) for d in published.decisions] == [0, 1, 2, 3]
         node.destroy_node()
     finally:
         rclpy.shutdown()

@@ -38,6 +38,7 @@ class TrackerNode(GldtNode):
         self._frame_size: tuple[int, int] | None = None
         self.intrinsics = None
         self._order = StampOrder()
+        self._last_tracked_frame = -1
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
         self.create_subscription(CameraInfo, topics.CAMERA_INFO, self.guarded(self.on_camera_info, "camera_info"), qos.camera_qos(self.param("camera_qos")))
@@ -72,7 +73,14 @@ class TrackerNode(GldtNode):
             message.width, message.height = x2 - x1, y2 - y1
             messages.append(message)
         self.prediction_publisher.publish(
-            TrackPredictions(header=tick.header, frame_index=tick.frame_index, width=tick.width, height=tick.height, tracks=messages)
+            TrackPredictions(
+                header=tick.header,
+                frame_index=tick.frame_index,
+                width=tick.width,
+                height=tick.height,
+                tracks=messages,
+                last_tracked_frame_index=self._last_tracked_frame,
+            )
         )
 
     def _check_time(self, t: float, frame_index: int) -> None:
@@ -111,6 +119,7 @@ class TrackerNode(GldtNode):
             tracks.append(out)
         array = TrackArray(header=message.header, frame_index=message.frame_index, tracks=tracks)
         self.track_publisher.publish(array)
+        self._last_tracked_frame = int(message.frame_index)
         if bool(self.param("publish_markers")) and self.marker_publisher.get_subscription_count() > 0:
             self.marker_publisher.publish(markers_for(array))
 

@@ -6,7 +6,10 @@ core :class:`~gldt_core.pipeline.scheduler.ModeScheduler` on them and publishes 
 frame are counted per ROI and reported to the state machine, which drives the N_m rule.
 
 In ``lockstep`` (deterministic replay) a new frame is only planned once the previous LOCAL
-frame's detections have been reported, so the decision never depends on message timing.
+frame's detections have been reported, so the decision never depends on message timing. The wait
+ends early when the tracker's predictions for a later frame say it never tracked the awaited one
+(the player gave up on that frame, say because a detector died), and at ``report_timeout`` at
+the latest.
 """
 
 from __future__ import annotations
@@ -57,6 +60,15 @@ class ModeSchedulerNode(GldtNode):
         self._queue.append(message)
         self._drain()
 
+    def _awaited_frame_given_up(self) -> bool:
+        """The player sends frame t+1 only after tracks for frame t or after giving frame t up. So
+        predictions for a later frame from a tracker that never tracked the awaited frame mean it
+        was given up, and its detections (if they ever come) no longer matter: plan on now instead
+        of stalling every following frame until ``report_timeout``. The newest queued predictions
+        carry what the tracker knows last."""
+        awaited, newest = self._awaiting_report, self._queue[-1]
+        return awaited is not None and int(newest.frame_index) > awaited and newest.last_tracked_frame_index < awaited
+
     def _check_report_timeout(self) -> None:
         """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph.
 
@@ -75,7 +87,15 @@ class ModeSchedulerNode(GldtNode):
             self._drain()
 
     def _drain(self) -> None:
-        while self._queue and not (self.lockstep and self._awaiting_report is not None):
+        while self._queue:
+            if self.lockstep and self._awaiting_report is not None:
+                if not self._awaited_frame_given_up():
+                    return
+                self.warn_throttled(
+                    "abandoned-frame",
+                    f"LOCAL frame {self._awaiting_report} was given up (never tracked); planning on without its detections",
+                )
+                self._awaiting_report = None
             self._plan(self._queue.popleft())
 
     def _plan(self, message: TrackPredictions) -> None:
