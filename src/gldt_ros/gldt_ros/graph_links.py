@@ -80,6 +80,21 @@ def missing_links(observer: Node, reports: dict[str, dict[str, int]]) -> list[st
     return missing
 
 
+def node_endpoint_gids(observer: Node, node_name: str, namespace: str) -> dict[str, set[bytes]]:
+    """For each data topic of the node ``namespace/node_name``, the ids of its endpoints that
+    ``observer`` can see: a restarted process is told apart from the dead one by new ids (a killed
+    process stays visible until its DDS lease runs out)."""
+    gids: dict[str, set[bytes]] = {}
+    for info_by_topic in (observer.get_publishers_info_by_topic, observer.get_subscriptions_info_by_topic):
+        for topic, _ in observer.get_topic_names_and_types():
+            if topic in _INFRASTRUCTURE_TOPICS:
+                continue
+            for info in info_by_topic(topic):
+                if info.node_name == node_name and info.node_namespace.rstrip("/") == namespace.rstrip("/"):
+                    gids.setdefault(topic, set()).add(bytes(info.endpoint_gid))
+    return gids
+
+
 def reporting_nodes_missing(expected: Iterable[str], reports: dict[str, dict[str, int]]) -> list[str]:
     """Expected node names that have not reported link counts yet."""
     return sorted(name for name in expected if name not in reports)

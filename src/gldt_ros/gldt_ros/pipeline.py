@@ -12,6 +12,7 @@ child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if they hang).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import subprocess
@@ -19,7 +20,7 @@ import sys
 import threading
 import time
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
 
@@ -63,6 +64,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--frame-timeout", type=float, default=20.0, help="lockstep: seconds to wait for one frame's tracks")
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all nodes to come up")
     parser.add_argument("--max-restarts", type=int, default=5, help="restarts of a node that dies after start-up (0: stop the graph instead)")
+    parser.add_argument(
+        "--no-spare", dest="spare", action="store_false",
+        help="restart dead nodes from scratch instead of from a warm spare process (saves its memory)",
+    )
     args = parser.parse_args(argv)
     if args.rate <= 0:
         parser.error(f"--rate must be positive, got {args.rate}")
@@ -104,22 +109,55 @@ def node_command(name: str, args: argparse.Namespace) -> list[str]:
     return command
 
 
+#: Seconds after a restart before a new spare is started (its imports would compete for the CPU
+#: with the restarted node's start-up).
+SPARE_DELAY_S = 5.0
+
+
 class NodeProcesses:
-    """The child node processes: start, supervise (restart the ones that die), stop."""
+    """The child node processes: start, supervise (restart the ones that die), stop.
+
+    While supervising it keeps one warm spare (:mod:`gldt_ros.spare`, unless ``--no-spare``): an
+    interpreter with the node modules imported, which becomes the first node that dies, so a
+    restart skips the interpreter start and the imports.
+    """
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.args = args
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self.restarts: dict[str, int] = {name: 0 for name in NODES}
         self.supervising = False
+        self.spare: subprocess.Popen[bytes] | None = None
+        self._last_restart = float("-inf")
         self._lock = threading.Lock()
         for name in NODES:
             self._start(name)
 
     def _start(self, name: str) -> None:
+        spare, self.spare = self.spare, None
+        if spare is not None and spare.poll() is None and spare.stdin is not None:
+            try:
+                request = json.dumps([name, *node_command(name, self.args)[3:]]) + "\n"
+                spare.stdin.write(request.encode())
+                spare.stdin.close()
+            except OSError:
+                spare = None  # it died meanwhile; start from scratch
+            if spare is not None:
+                self.processes[name] = spare
+                print(f"pipeline: started {name} (pid {spare.pid}, the warm spare)", flush=True)
+                return
         process = subprocess.Popen(node_command(name, self.args), start_new_session=True)
         self.processes[name] = process
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
+
+    def keep_spare(self) -> None:
+        """Start a spare if none is waiting (and none was used in the last ``SPARE_DELAY_S``)."""
+        if not self.args.spare or not self.supervising:
+            return
+        if (self.spare is None or self.spare.poll() is not None) and time.monotonic() - self._last_restart >= SPARE_DELAY_S:
+            self.spare = subprocess.Popen(
+                [sys.executable, "-m", "gldt_ros.spare"], stdin=subprocess.PIPE, start_new_session=True
+            )
 
     def dead(self) -> list[str]:
         """Nodes that are not running and will not be restarted."""
@@ -147,13 +185,23 @@ class NodeProcesses:
                 self.restarts[name] += 1
                 print(f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})", flush=True)
                 self._start(name)
+                self._last_restart = time.monotonic()
                 restarted.append(name)
+            self.keep_spare()
         return restarted
 
     def stop(self, grace_s: float = 10.0) -> int:
         """SIGINT every child, escalate to SIGTERM/SIGKILL; return the number that did not exit cleanly."""
         with self._lock:
             self.supervising = False
+            spare, self.spare = self.spare, None
+        if spare is not None and spare.stdin is not None:
+            spare.stdin.close()  # end of input: the spare exits
+            try:
+                spare.wait(timeout=grace_s)
+            except subprocess.TimeoutExpired:
+                spare.kill()
+                spare.wait()
         for process in self.processes.values():
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
@@ -209,7 +257,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s", flush=True)
         if children is not None:
             children.supervising = True
-            supervisor = threading.Thread(target=_supervise_until, args=(children, stop_requested), daemon=True)
+            supervisor = threading.Thread(
+                target=_supervise_until, args=(children, stop_requested, driver.note_restarted), daemon=True
+            )
             supervisor.start()
         if args.bag is not None:
             summary = driver.replay(stop_requested, lambda: children.dead() if children else [])
@@ -240,10 +290,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     return status
 
 
-def _supervise_until(children: NodeProcesses, stop: threading.Event, period_s: float = 0.2) -> None:
-    """Restart dead nodes until asked to stop (each node prints "ready" once it is back up)."""
+def _supervise_until(
+    children: NodeProcesses,
+    stop: threading.Event,
+    on_restart: Callable[[str], None] | None = None,
+    period_s: float = 0.2,
+) -> None:
+    """Restart dead nodes until asked to stop (each node prints "ready" once it is back up), and
+    tell ``on_restart`` which (the driver relinks the graph before its next lockstep frame)."""
     while not stop.wait(period_s):
-        children.supervise()
+        for name in children.supervise():
+            if on_restart is not None:
+                on_restart(name)
 
 
 def _create_in_process_nodes(args: argparse.Namespace) -> list:

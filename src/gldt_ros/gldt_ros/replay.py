@@ -13,7 +13,13 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from gldt_ros import qos, topics
 from gldt_ros.bag_io import IMAGE_TYPES_SET, McapRecorder, bag_topics, header_stamp_ns, iter_bag, message_class
-from gldt_ros.graph_links import missing_links, own_link_counts, parse_link_counts, reporting_nodes_missing
+from gldt_ros.graph_links import (
+    missing_links,
+    node_endpoint_gids,
+    own_link_counts,
+    parse_link_counts,
+    reporting_nodes_missing,
+)
 from gldt_ros.node_base import STATUS_NAME_PREFIX
 from gldt_ros.pipeline import NODES
 
@@ -47,7 +53,13 @@ RECORDED_TOPICS = {
 
 
 class GraphDriver(Node):
-    """Replays a bag (paced or in lockstep with ``/gldt/tracks``) and records the outputs."""
+    """Replays a bag (paced or in lockstep with ``/gldt/tracks``) and records the outputs.
+
+    In lockstep a restarted node (:meth:`note_restarted`) pauses the replay until the new process
+    is linked into the graph: the frame in flight is given up at once, and the next one goes out
+    only when every link is matched again, so it is answered instead of vanishing between a node
+    and a peer that has not discovered it yet. A paced replay does not wait (a camera would not).
+    """
 
     def __init__(self, args: argparse.Namespace) -> None:
         super().__init__("gldt_pipeline")
@@ -73,6 +85,9 @@ class GraphDriver(Node):
             self._on_diagnostics,
             QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL),
         )
+        # Restarted nodes the lockstep replay has not relinked yet: name -> endpoint ids of the
+        # dead process, which peers keep seeing until its DDS lease runs out.
+        self._restarted: dict[str, dict[str, set[bytes]]] = {}
 
     def _on_diagnostics(self, array: DiagnosticArray) -> None:
         for status in array.status:
@@ -85,6 +100,51 @@ class GraphDriver(Node):
         with self._statuses_lock:
             statuses = dict(self._statuses)
         return {name: {pair.key: pair.value for pair in status.values} for name, status in statuses.items()}
+
+    def note_restarted(self, name: str) -> None:
+        """The supervisor restarted node ``name``: forget its last status (its links were the dead
+        process's) and, in lockstep, stop waiting for the frame in flight and relink first."""
+        dead_endpoints = node_endpoint_gids(self, name, self.get_namespace())
+        with self._statuses_lock:
+            self._statuses.pop(name, None)
+        if self.args.lockstep:
+            with self._answered_cv:
+                self._restarted[name] = dead_endpoints
+                self._answered_cv.notify_all()
+
+    def _relink_after_restarts(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str | None:
+        """If nodes were restarted, block until each new process is visible and every link of
+        the graph is matched again (at most ``--startup-timeout``); returns what happened, in words."""
+        with self._answered_cv:
+            restarted = dict(self._restarted)
+        if not restarted:
+            return None
+        began = time.monotonic()
+        deadline = began + self.args.startup_timeout
+        waiting = set(restarted)
+        while waiting and not stop.is_set() and time.monotonic() < deadline and not waiting & set(dead()):
+            waiting = {name for name in waiting if not self._new_process_visible(name, restarted[name])}
+            if waiting:
+                stop.wait(0.02)
+        linked = not waiting and self.wait_until_linked(
+            list(NODES), stop, max(0.0, deadline - time.monotonic())
+        )
+        with self._answered_cv:
+            for name, endpoints in restarted.items():
+                if self._restarted.get(name) is endpoints:
+                    del self._restarted[name]
+        names = ", ".join(sorted(restarted))
+        if not linked:
+            return f"graph not linked again {time.monotonic() - began:.2f} s after restarting {names}; going on"
+        return f"graph linked again {time.monotonic() - began:.2f} s after restarting {names}"
+
+    def _new_process_visible(self, name: str, dead_endpoints: dict[str, set[bytes]]) -> bool:
+        """Whether this process sees the restarted node's own endpoints (not the dead ones) on
+        every topic the dead process had."""
+        now = node_endpoint_gids(self, name, self.get_namespace())
+        if not dead_endpoints:
+            return bool(now)
+        return all(now.get(topic, set()) - gids for topic, gids in dead_endpoints.items())
 
     def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
         def callback(raw: bytes) -> None:
@@ -209,6 +269,9 @@ class GraphDriver(Node):
                     if delay > 0:
                         stop.wait(delay)
                 if message.msgtype in IMAGE_TYPES_SET:
+                    relinked = self._relink_after_restarts(stop, dead) if self.args.lockstep else None
+                    if relinked is not None:
+                        print(f"pipeline: {relinked}; next frame stamped {header_stamp_ns(message.data)}", flush=True)
                     self.note_published(header_stamp_ns(message.data))
                 publisher.publish(message.data)
                 if message.msgtype in IMAGE_TYPES_SET:
@@ -236,6 +299,9 @@ class GraphDriver(Node):
         deadline = time.monotonic() + self.args.frame_timeout
         with self._answered_cv:
             while stamp_ns not in self._answered:
+                if self._restarted:
+                    self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns: a node was restarted")
+                    return False
                 if stop.is_set() or time.monotonic() > deadline or dead():
                     self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns; going on")
                     return False

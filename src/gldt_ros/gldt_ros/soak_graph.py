@@ -534,7 +534,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
         startup["ready_s"] = ready - launch
         children.supervising = args.max_restarts > 0
         if children.supervising:
-            threading.Thread(target=_supervise_until, args=(children, stop), daemon=True).start()
+            threading.Thread(target=_supervise_until, args=(children, stop, driver.note_restarted), daemon=True).start()
         driver._prepare_publishers(stop)
         duration = 60.0 if args.startup_only else 60.0 * args.minutes
         replay_start = time.monotonic()
