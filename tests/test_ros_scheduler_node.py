@@ -13,12 +13,15 @@ from gldt_msgs.msg import SchedulerState, Track, TrackPredictions  # noqa: E402
 from gldt_ros.nodes import mode_scheduler  # noqa: E402
 
 
-def predictions(frame: int, last_tracked: int | None = None) -> TrackPredictions:
+def predictions(frame: int, last_tracked: int | None = None, index: int | None = None) -> TrackPredictions:
     """One confirmed track in mid-image, for frame ``frame`` of a 30 Hz 1920x1080 stream, from a
-    tracker that tracked every frame before it unless ``last_tracked`` says otherwise."""
+    tracker that tracked every frame before it unless ``last_tracked`` says otherwise (-1: none);
+    ``index`` is the frame buffer's count when it differs from ``frame`` (a restarted buffer)."""
     last_tracked = frame - 1 if last_tracked is None else last_tracked
-    message = TrackPredictions(frame_index=frame, width=1920, height=1080, last_tracked_frame_index=last_tracked)
+    message = TrackPredictions(frame_index=frame if index is None else index, width=1920, height=1080)
     message.header.stamp.sec, message.header.stamp.nanosec = divmod((frame + 1) * 33_333_333, 1_000_000_000)
+    if last_tracked >= 0:  # else the zero stamp: nothing tracked
+        message.last_tracked_stamp.sec, message.last_tracked_stamp.nanosec = divmod((last_tracked + 1) * 33_333_333, 1_000_000_000)
     message.tracks = [Track(id=1, state=Track.STATE_CONFIRMED, center_x=960.0, center_y=540.0, width=20.0, height=12.0)]
     return message
 
@@ -75,6 +78,22 @@ def test_a_frame_the_tracker_moved_past_untracked_is_not_waited_for() -> None:
         assert len(published.decisions) == 2, "the tracker has frame 1's detections, so the scheduler gets them too"
         node.on_predictions(predictions(3, last_tracked=0))  # the tracker never tracked frame 1: given up
         assert [int(d.frame_index) for d in published.decisions] == [0, 1, 2, 3]
+        node.destroy_node()
+    finally:
+        rclpy.shutdown()
+
+
+def test_a_restarted_frame_buffer_counting_from_zero_does_not_stall_the_wait() -> None:
+    """The buffer's frame index starts at 0 again after its restart; the stamps go on."""
+    rclpy.init()
+    try:
+        node = lockstep_scheduler(report_timeout=600.0)
+        published = Published()
+        node.state_publisher = published
+        node.on_predictions(predictions(40))  # GLOBAL
+        node.on_predictions(predictions(41))  # LOCAL: waits for its detections
+        node.on_predictions(predictions(42, last_tracked=40, index=0))  # frame 41 never tracked
+        assert [int(d.frame_index) for d in published.decisions] == [40, 41, 0]
         node.destroy_node()
     finally:
         rclpy.shutdown()

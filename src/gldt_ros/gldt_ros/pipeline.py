@@ -140,24 +140,43 @@ class NodeProcesses:
                 request = json.dumps([name, *node_command(name, self.args)[3:]]) + "\n"
                 spare.stdin.write(request.encode())
                 spare.stdin.close()
-            except OSError:
-                spare = None  # it died meanwhile; start from scratch
-            if spare is not None:
                 self.processes[name] = spare
                 print(f"pipeline: started {name} (pid {spare.pid}, the warm spare)", flush=True)
                 return
+            except OSError:
+                self._discard_spare(spare)  # it died meanwhile; start from scratch
         process = subprocess.Popen(node_command(name, self.args), start_new_session=True)
         self.processes[name] = process
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
     def keep_spare(self) -> None:
-        """Start a spare if none is waiting (and none was used in the last ``SPARE_DELAY_S``)."""
+        """Start a spare if none is waiting, a restart is still allowed, and none was used (or
+        died) in the last ``SPARE_DELAY_S``."""
         if not self.args.spare or not self.supervising:
             return
-        if (self.spare is None or self.spare.poll() is not None) and time.monotonic() - self._last_restart >= SPARE_DELAY_S:
+        if not any(count < self.args.max_restarts for count in self.restarts.values()):
+            return
+        if self.spare is not None and self.spare.poll() is not None:
+            print(f"pipeline: the warm spare exited with code {self.spare.returncode}; starting another later", flush=True)
+            self._discard_spare(self.spare)
+            self.spare = None
+            self._last_restart = time.monotonic()
+        if self.spare is None and time.monotonic() - self._last_restart >= SPARE_DELAY_S:
             self.spare = subprocess.Popen(
                 [sys.executable, "-m", "gldt_ros.spare"], stdin=subprocess.PIPE, start_new_session=True
             )
+
+    @staticmethod
+    def _discard_spare(spare: subprocess.Popen[bytes]) -> None:
+        """Stop a spare and release its pipe (it holds no state)."""
+        if spare.stdin is not None:
+            try:
+                spare.stdin.close()
+            except OSError:
+                pass
+        if spare.poll() is None:
+            spare.kill()
+        spare.wait()
 
     def dead(self) -> list[str]:
         """Nodes that are not running and will not be restarted."""
@@ -168,21 +187,35 @@ class NodeProcesses:
                 if process.poll() is not None and not (self.supervising and self.restarts[name] < self.args.max_restarts)
             ]
 
-    def supervise(self) -> list[str]:
+    def supervise(self, before_restart: Callable[[str], None] | None = None) -> list[str]:
         """Restart every node that died (once start-up is over), at most ``--max-restarts`` times each.
 
         A node dying is a fault to survive, not a reason to stop the graph: the others keep their
-        state and the restarted node rejoins through DDS discovery.
+        state and the restarted node rejoins through DDS discovery. ``before_restart(name)`` runs
+        before the new process starts (the driver notes which endpoints were the dead one's), and
+        outside this object's lock, which the driver's own waits take.
         """
+        with self._lock:
+            if not self.supervising:
+                return []
+            dying = [
+                name
+                for name, process in self.processes.items()
+                if process.poll() is not None and self.restarts[name] < self.args.max_restarts
+            ]
+        for name in dying:
+            if before_restart is not None:
+                try:
+                    before_restart(name)
+                except Exception as error:  # noqa: BLE001 - the supervisor must outlive a failed notice
+                    print(f"pipeline: noting the restart of {name} failed: {error}", flush=True)
         restarted: list[str] = []
         with self._lock:
             if not self.supervising:
                 return restarted
-            for name, process in list(self.processes.items()):
-                code = process.poll()
-                if code is None or self.restarts[name] >= self.args.max_restarts:
-                    continue
+            for name in dying:
                 self.restarts[name] += 1
+                code = self.processes[name].returncode
                 print(f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})", flush=True)
                 self._start(name)
                 self._last_restart = time.monotonic()
@@ -195,13 +228,8 @@ class NodeProcesses:
         with self._lock:
             self.supervising = False
             spare, self.spare = self.spare, None
-        if spare is not None and spare.stdin is not None:
-            spare.stdin.close()  # end of input: the spare exits
-            try:
-                spare.wait(timeout=grace_s)
-            except subprocess.TimeoutExpired:
-                spare.kill()
-                spare.wait()
+        if spare is not None:
+            self._discard_spare(spare)
         for process in self.processes.values():
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
@@ -296,12 +324,11 @@ def _supervise_until(
     on_restart: Callable[[str], None] | None = None,
     period_s: float = 0.2,
 ) -> None:
-    """Restart dead nodes until asked to stop (each node prints "ready" once it is back up), and
-    tell ``on_restart`` which (the driver relinks the graph before its next lockstep frame)."""
+    """Restart dead nodes until asked to stop (each node prints "ready" once it is back up),
+    telling ``on_restart`` which before each starts (the driver relinks the graph before its next
+    lockstep frame)."""
     while not stop.wait(period_s):
-        for name in children.supervise():
-            if on_restart is not None:
-                on_restart(name)
+        children.supervise(on_restart)
 
 
 def _create_in_process_nodes(args: argparse.Namespace) -> list:

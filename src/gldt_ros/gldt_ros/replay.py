@@ -102,7 +102,8 @@ class GraphDriver(Node):
         return {name: {pair.key: pair.value for pair in status.values} for name, status in statuses.items()}
 
     def note_restarted(self, name: str) -> None:
-        """The supervisor restarted node ``name``: forget its last status (its links were the dead
+        """The supervisor is about to restart node ``name`` (called before the new process starts,
+        so nothing seen here is the new one's): forget its last status (its links were the dead
         process's) and, in lockstep, stop waiting for the frame in flight and relink first."""
         dead_endpoints = node_endpoint_gids(self, name, self.get_namespace())
         with self._statuses_lock:

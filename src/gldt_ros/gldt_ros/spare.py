@@ -37,6 +37,8 @@ def become_node(request_line: str) -> int:
 
 
 def main(stdin: TextIO | None = None) -> int:
+    import onnxruntime  # noqa: F401  (the detectors import it only when they open a model)
+
     for name in NODES:
         importlib.import_module(f"gldt_ros.nodes.{name}")
     line = (stdin or sys.stdin).readline()

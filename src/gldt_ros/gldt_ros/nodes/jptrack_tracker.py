@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from builtin_interfaces.msg import Time
 from gldt_msgs.msg import DetectionArray, FrameTick, TrackArray, TrackPredictions
 from sensor_msgs.msg import CameraInfo
 from visualization_msgs.msg import MarkerArray
@@ -38,7 +39,7 @@ class TrackerNode(GldtNode):
         self._frame_size: tuple[int, int] | None = None
         self.intrinsics = None
         self._order = StampOrder()
-        self._last_tracked_frame = -1
+        self._last_tracked_stamp = Time()  # zero: nothing tracked yet
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
         self.create_subscription(CameraInfo, topics.CAMERA_INFO, self.guarded(self.on_camera_info, "camera_info"), qos.camera_qos(self.param("camera_qos")))
@@ -79,7 +80,7 @@ class TrackerNode(GldtNode):
                 width=tick.width,
                 height=tick.height,
                 tracks=messages,
-                last_tracked_frame_index=self._last_tracked_frame,
+                last_tracked_stamp=self._last_tracked_stamp,
             )
         )
 
@@ -118,8 +119,8 @@ class TrackerNode(GldtNode):
             fill_planner_fields(out, track, self.intrinsics)
             tracks.append(out)
         array = TrackArray(header=message.header, frame_index=message.frame_index, tracks=tracks)
+        self._last_tracked_stamp = message.header.stamp
         self.track_publisher.publish(array)
-        self._last_tracked_frame = int(message.frame_index)
         if bool(self.param("publish_markers")) and self.marker_publisher.get_subscription_count() > 0:
             self.marker_publisher.publish(markers_for(array))
 

@@ -47,6 +47,7 @@ class ModeSchedulerNode(GldtNode):
         self._last_stamp: float | None = None
         self._plans: dict[int, Any] = {}
         self._awaiting_report: int | None = None
+        self._awaiting_stamp = 0.0
         self._awaiting_since = 0.0
         self.create_timer(0.05, self._check_report_timeout)
         self._queue: deque[TrackPredictions] = deque()
@@ -65,9 +66,14 @@ class ModeSchedulerNode(GldtNode):
         predictions for a later frame from a tracker that never tracked the awaited frame mean it
         was given up, and its detections (if they ever come) no longer matter: plan on now instead
         of stalling every following frame until ``report_timeout``. The newest queued predictions
-        carry what the tracker knows last."""
-        awaited, newest = self._awaiting_report, self._queue[-1]
-        return awaited is not None and int(newest.frame_index) > awaited and newest.last_tracked_frame_index < awaited
+        carry what the tracker knows last. Stamps, not frame indices: a restarted frame buffer
+        counts frames from 0 again."""
+        newest = self._queue[-1]
+        return (
+            self._awaiting_report is not None
+            and stamp_seconds(newest.header.stamp) > self._awaiting_stamp
+            and stamp_seconds(newest.last_tracked_stamp) < self._awaiting_stamp
+        )
 
     def _check_report_timeout(self) -> None:
         """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph.
@@ -117,7 +123,7 @@ class ModeSchedulerNode(GldtNode):
             del self._plans[old]
         local = plan.mode.name == "LOCAL"
         if local:
-            self._awaiting_report = index
+            self._awaiting_report, self._awaiting_stamp = index, stamp
             self._awaiting_since = time.monotonic()
         state = self.scheduler.state
         roi_msgs = rois_to_msgs(plan.rois, plan.layout.groups)
