@@ -79,3 +79,36 @@ def test_one_epoch_of_training_moves_the_weights_and_writes_a_loadable_checkpoin
     with torch.no_grad():
         out = model(image, image) if task == "global" else model(image)
     assert np.isfinite(out.numpy()).all()
+
+
+def test_parallel_scene_rendering_caches_the_same_pairs_as_serial(tmp_path: Path) -> None:
+    from gldt_core.nn.data import load_synthetic
+
+    serial = load_synthetic("train", 2, 10, 4, 0.25, tmp_path / "serial", workers=0)
+    parallel = load_synthetic("train", 2, 10, 4, 0.25, tmp_path / "parallel", workers=2)
+    assert [(p.source, p.frame) for p in parallel] == [(p.source, p.frame) for p in serial]
+    assert len({p.source for p in serial}) == 2
+    for a, b in zip(serial, parallel):
+        assert a.current == b.current and a.previous == b.previous
+        np.testing.assert_array_equal(a.boxes, b.boxes)
+
+
+def test_wall_clock_budget_ends_the_schedule_after_the_first_step_with_a_checkpoint(tmp_path: Path, data_cache: Path) -> None:
+    config = tiny_config("local", data_cache)
+    config["train"].update({"epochs": 3, "steps_per_epoch": 4, "max_wall_s": 1e-6, "loader_workers": 1})
+    best = train("local", config, out_dir=tmp_path / "run", progress=False)
+    _, checkpoint = load_checkpoint(best)
+    with (tmp_path / "run" / "log.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert checkpoint["epoch"] == 1 and len(rows) == 1, "a spent budget must stop the schedule after epoch 1"
+    assert float(rows[0]["lr"]) == pytest.approx(config["train"]["lr"] * 0.05), "the schedule must have annealed to its floor"
+
+
+def test_asking_for_cuda_without_one_is_a_clear_error() -> None:
+    from gldt_core.nn.train import resolve_device
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(ValueError, match="sees no CUDA device"):
+        resolve_device("cuda")
+    assert resolve_device("auto").type == "cpu"

@@ -17,6 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seed", type=int, default=None, help="override the config's seed")
     parser.add_argument("--epochs", type=int, default=None, help="override train.epochs")
     parser.add_argument("--steps-per-epoch", type=int, default=None, help="override train.steps_per_epoch")
+    parser.add_argument("--device", default=None, help="override train.device: auto, cpu, cuda, cuda:N")
+    parser.add_argument("--workers", type=int, default=None, help="override data.load_workers and train.loader_workers (worker processes for decoding and augmentation)")
+    parser.add_argument("--max-wall-s", type=float, default=None, help="override train.max_wall_s: finish the schedule within this many seconds")
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.set_defaults(func=_run)
 
@@ -34,6 +37,12 @@ def _run(args: argparse.Namespace) -> int:
         config["train"]["epochs"] = args.epochs
     if args.steps_per_epoch is not None:
         config["train"]["steps_per_epoch"] = args.steps_per_epoch
+    if args.device is not None:
+        config["train"]["device"] = args.device
+    if args.workers is not None:
+        config["data"]["load_workers"] = config["train"]["loader_workers"] = args.workers
+    if args.max_wall_s is not None:
+        config["train"]["max_wall_s"] = args.max_wall_s
     best = train(args.task, config, out_dir=args.out, progress=not args.no_progress)
     print(f"best checkpoint: {best}")
     return 0

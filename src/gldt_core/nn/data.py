@@ -16,10 +16,12 @@ Classes: index 0 drone, 1 bird, 2 airplane (helicopters are folded into airplane
 from __future__ import annotations
 
 import hashlib
+import os
 import pickle
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable
+from typing import TYPE_CHECKING, Callable, Iterable, Sequence, TypeVar
 
 import cv2
 import numpy as np
@@ -27,6 +29,9 @@ import torch
 from torch.utils.data import Dataset
 
 from gldt_core.io.mot import read_mot
+
+if TYPE_CHECKING:
+    from gldt_core.sim.spec import SceneSpec
 
 #: MOT class code (Halmstad gt column 8) -> model class index.
 MOT_CLASS_TO_INDEX = {1: 0, 2: 1, 3: 2, 4: 2}
@@ -94,43 +99,65 @@ def load_clip_pairs(video: Path, gt_path: Path, frame_step: int, include_empty: 
     return pairs
 
 
-def load_halmstad(root: Path, clips: Iterable[str], frame_step: int, cache_dir: Path) -> list[FramePair]:
-    """Frame pairs from the named clips, cached on disk keyed by (clips, step)."""
-    clips = sorted(clips)
-    key = hashlib.sha1(("|".join(clips) + f"|{frame_step}").encode()).hexdigest()[:12]
-    cache = Path(cache_dir) / f"halmstad_{key}.pkl"
+_Item = TypeVar("_Item")
+_Result = TypeVar("_Result")
+
+
+def _map_in_order(work: Callable[[_Item], _Result], items: Sequence[_Item], workers: int) -> list[_Result]:
+    """``[work(i) for i in items]``, spread over ``workers`` processes when > 1 (order kept, so the
+    cached data set is the same whatever the worker count)."""
+    if workers <= 1 or len(items) <= 1:
+        return [work(item) for item in items]
+    with ProcessPoolExecutor(max_workers=min(workers, len(items))) as pool:
+        return list(pool.map(work, items))
+
+
+def _cached(cache: Path, build: Callable[[], list[FramePair]]) -> list[FramePair]:
+    """The pickled pairs at ``cache``, built and written atomically on the first call."""
     if cache.is_file():
         with cache.open("rb") as fh:
             return pickle.load(fh)
-    pairs: list[FramePair] = []
-    for clip in clips:
-        pairs.extend(load_clip_pairs(Path(root) / "videos" / f"{clip}.mp4", Path(root) / "gt" / f"{clip}.txt", frame_step))
+    pairs = build()
     cache.parent.mkdir(parents=True, exist_ok=True)
-    tmp = cache.with_suffix(".tmp")
+    tmp = cache.with_name(f"{cache.name}.{os.getpid()}.tmp")  # concurrent builders must not share one
     with tmp.open("wb") as fh:
         pickle.dump(pairs, fh, protocol=pickle.HIGHEST_PROTOCOL)
     tmp.replace(cache)
     return pairs
 
 
-def load_synthetic(split: str, num_scenes: int, frames_per_scene: int, frame_step: int, scale: float, cache_dir: Path) -> list[FramePair]:
-    """Frame pairs from the ``gldt_core.sim`` preset split, resized by ``scale`` and cached on disk.
+class _ClipLoader:
+    """Picklable ``clip name -> pairs`` for the worker processes of :func:`load_halmstad`."""
 
-    ``scale`` puts the synthetic 1080p frames at the resolution the detector sees them at run time
-    (1/3 for the global model's 640-wide input, 1 for the local model's native-resolution ROIs),
-    so one augmentation scale range fits real and synthetic pairs alike.
-    """
-    from gldt_core.sim import SceneRenderer, presets
+    def __init__(self, root: Path, frame_step: int):
+        self.root, self.frame_step = Path(root), frame_step
 
-    key = f"sim_{split}_{num_scenes}_{frames_per_scene}_{frame_step}_{scale:.4f}"
-    cache = Path(cache_dir) / f"{key}.pkl"
-    if cache.is_file():
-        with cache.open("rb") as fh:
-            return pickle.load(fh)
-    pairs: list[FramePair] = []
-    for spec in presets.split(split, count=num_scenes, frames=frames_per_scene):
+    def __call__(self, clip: str) -> list[FramePair]:
+        return load_clip_pairs(self.root / "videos" / f"{clip}.mp4", self.root / "gt" / f"{clip}.txt", self.frame_step)
+
+
+def load_halmstad(root: Path, clips: Iterable[str], frame_step: int, cache_dir: Path, workers: int = 0) -> list[FramePair]:
+    """Frame pairs from the named clips, cached on disk keyed by (clips, step); ``workers``
+    processes decode clips side by side."""
+    clips = sorted(clips)
+    key = hashlib.sha1(("|".join(clips) + f"|{frame_step}").encode()).hexdigest()[:12]
+    build = lambda: [p for pairs in _map_in_order(_ClipLoader(root, frame_step), clips, workers) for p in pairs]  # noqa: E731
+    return _cached(Path(cache_dir) / f"halmstad_{key}.pkl", build)
+
+
+class _SceneLoader:
+    """Picklable ``scene spec -> pairs`` for the worker processes of :func:`load_synthetic`."""
+
+    def __init__(self, frame_step: int, scale: float):
+        self.frame_step, self.scale = frame_step, scale
+
+    def __call__(self, spec: "SceneSpec") -> list[FramePair]:
+        from gldt_core.sim import SceneRenderer
+
+        scale = self.scale
         renderer = SceneRenderer(spec)
-        for t in range(1, spec.frames, frame_step):
+        pairs: list[FramePair] = []
+        for t in range(1, spec.frames, self.frame_step):
             previous = renderer.render(t - 1)
             current, rows = renderer.render_with_truth(t)
             if scale != 1.0:
@@ -143,12 +170,23 @@ def load_synthetic(split: str, num_scenes: int, frames_per_scene: int, frame_ste
                 if int(r[7]) in MOT_CLASS_TO_INDEX
             ]
             pairs.append(FramePair(spec.name, t + 1, _encode(previous), _encode(current), np.asarray(boxes, np.float32).reshape(-1, 5)))
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    tmp = cache.with_suffix(".tmp")
-    with tmp.open("wb") as fh:
-        pickle.dump(pairs, fh, protocol=pickle.HIGHEST_PROTOCOL)
-    tmp.replace(cache)
-    return pairs
+        return pairs
+
+
+def load_synthetic(split: str, num_scenes: int, frames_per_scene: int, frame_step: int, scale: float, cache_dir: Path, workers: int = 0) -> list[FramePair]:
+    """Frame pairs from the ``gldt_core.sim`` preset split, resized by ``scale`` and cached on disk.
+
+    ``scale`` puts the synthetic 1080p frames at the resolution the detector sees them at run time
+    (1/3 for the global model's 640-wide input, 1 for the local model's native-resolution ROIs),
+    so one augmentation scale range fits real and synthetic pairs alike. ``workers`` processes
+    render scenes side by side.
+    """
+    from gldt_core.sim import presets
+
+    key = f"sim_{split}_{num_scenes}_{frames_per_scene}_{frame_step}_{scale:.4f}"
+    specs = presets.split(split, count=num_scenes, frames=frames_per_scene)
+    build = lambda: [p for pairs in _map_in_order(_SceneLoader(frame_step, scale), specs, workers) for p in pairs]  # noqa: E731
+    return _cached(Path(cache_dir) / f"{key}.pkl", build)
 
 
 def clip_boxes(boxes: np.ndarray, w: int, h: int, min_visible: float = 0.4, min_size: float = 1.0) -> np.ndarray:

@@ -57,6 +57,7 @@ DEFAULTS: dict[str, Any] = {
         "val_roi": 300,  # the runtime ROI side, used for validation at val_size
         "negative_fraction": 0.3,
         "val_max_images": 120,
+        "load_workers": 0,  # processes decoding clips / rendering scenes when the cache is cold
     },
     "train": {
         "epochs": 10,
@@ -67,6 +68,12 @@ DEFAULTS: dict[str, Any] = {
         "warmup_steps": 50,
         "ema_decay": 0.998,
         "val_score_threshold": 0.05,
+        "device": "auto",  # "auto" (cuda when torch sees one, else cpu), "cpu", "cuda", "cuda:1", ...
+        "loader_workers": 0,  # DataLoader worker processes (0: augment in the training process)
+        # Wall-clock budget (s) for the whole schedule, 0 = none. The cosine schedule follows
+        # whichever of steps or time runs out first, so a budgeted run still anneals to its end
+        # (at the price of bitwise reproducibility across machines).
+        "max_wall_s": 0,
     },
 }
 
@@ -141,17 +148,18 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
     """Training and validation datasets plus a description of what went in (for the model card)."""
     data = config["data"]
     seed = config["seed"]
+    workers = int(data["load_workers"])
     split = halmstad_split(data["halmstad_root"])
     train_pairs, val_pairs = [], []
     if data["use_real"]:
-        train_pairs += load_halmstad(data["halmstad_root"], split["train"], data["train_frame_step"], data["cache_dir"])
-    val_pairs += load_halmstad(data["halmstad_root"], split["val"], data["val_frame_step"], data["cache_dir"])
+        train_pairs += load_halmstad(data["halmstad_root"], split["train"], data["train_frame_step"], data["cache_dir"], workers)
+    val_pairs += load_halmstad(data["halmstad_root"], split["val"], data["val_frame_step"], data["cache_dir"], workers)
     synthetic: list = []
     if data["synthetic_scenes"]:
-        synthetic = load_synthetic("train", data["synthetic_scenes"], data["synthetic_frames"], data["synthetic_frame_step"], data["synthetic_scale"], data["cache_dir"])
+        synthetic = load_synthetic("train", data["synthetic_scenes"], data["synthetic_frames"], data["synthetic_frame_step"], data["synthetic_scale"], data["cache_dir"], workers)
         train_pairs += synthetic
     if data["synthetic_val_scenes"]:
-        val_pairs += load_synthetic("val", data["synthetic_val_scenes"], data["synthetic_frames"], data["synthetic_frame_step"] * 2, data["synthetic_scale"], data["cache_dir"])
+        val_pairs += load_synthetic("val", data["synthetic_val_scenes"], data["synthetic_frames"], data["synthetic_frame_step"] * 2, data["synthetic_scale"], data["cache_dir"], workers)
     if not train_pairs:
         raise ValueError("no training data: use_real is false and no synthetic scenes were produced")
     w, h = data["input_size"]
@@ -175,28 +183,44 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
     return train_ds, val_subset, info
 
 
-def _run_batch(model: torch.nn.Module, task: str, batch: tuple) -> tuple[Any, torch.Tensor, Any]:
-    """The model on one collated batch: ``(output, current images, boxes)``. Global batches are
-    ``(previous, current, boxes)`` (collate_pairs), local ones ``(crops, boxes)`` (collate_crops)."""
+def resolve_device(name: str) -> torch.device:
+    """The training device for ``train.device``; asking for CUDA without one is an error, not a silent CPU run."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"train.device is {name!r} but torch {torch.__version__} sees no CUDA device")
+    return device
+
+
+def _run_batch(model: torch.nn.Module, task: str, batch: tuple, device: torch.device) -> tuple[Any, torch.Tensor, Any]:
+    """The model on one collated batch, moved to ``device``: ``(output, current images, boxes)``.
+    Global batches are ``(previous, current, boxes)`` (collate_pairs), local ones ``(crops, boxes)``
+    (collate_crops)."""
+    move = lambda t: t.to(device, non_blocking=True)  # noqa: E731
     if task == "global":
         prev, cur, boxes = batch
-        return model(prev, cur), cur, boxes
+        prev, cur = move(prev), move(cur)
+        return model(prev, cur), cur, [move(b) for b in boxes]
     cur, boxes = batch
-    return model(cur), cur, boxes
+    cur = move(cur)
+    return model(cur), cur, [move(b) for b in boxes]
 
 
 @torch.no_grad()
-def validate(model: torch.nn.Module, task: str, loader: DataLoader, score_threshold: float) -> dict[str, float]:
+def validate(model: torch.nn.Module, task: str, loader: DataLoader, score_threshold: float, device: torch.device | None = None) -> dict[str, float]:
     """Drone-class AP metrics of ``model`` over ``loader`` (boxes in network-input pixels)."""
     model.eval()
+    device = device or next(model.parameters()).device
     dets, gts = [], []
     for batch in loader:
-        out, cur, boxes = _run_batch(model, task, batch)
+        out, cur, boxes = _run_batch(model, task, batch, device)
         in_h, in_w = cur.shape[2], cur.shape[3]
-        for o, b in zip(out.numpy(), boxes):
+        for o, b in zip(out.cpu().numpy(), boxes):
             d = decode_output(o, score_threshold, box_scale=(in_w, in_h))
             dets.append(d[d[:, 5] == 0])
-            gts.append(b.numpy()[b.numpy()[:, 0] == 0][:, 1:5])
+            b = b.cpu().numpy()
+            gts.append(b[b[:, 0] == 0][:, 1:5])
     return detection_summary(dets, gts)
 
 
@@ -223,7 +247,8 @@ def plot_curves(rows: list[dict[str, Any]], path: Path) -> None:
 
 def save_checkpoint(path: Path, model: torch.nn.Module, spec: ModelSpec, task: str, config: dict[str, Any], extra: dict[str, Any]) -> None:
     tmp = path.with_suffix(".tmp")
-    torch.save({"task": task, "spec": spec.to_dict(), "state_dict": model.state_dict(), "config": config, **extra}, tmp)
+    state = {k: v.detach().cpu() for k, v in model.state_dict().items()}  # loadable on a CPU-only machine
+    torch.save({"task": task, "spec": spec.to_dict(), "state_dict": state, "config": config, **extra}, tmp)
     tmp.replace(path)
 
 
@@ -255,9 +280,10 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
     train_ds, val_ds, data_info = build_datasets(task, config)
     collate = collate_pairs if task == "global" else collate_crops
     tcfg = config["train"]
-    model = Detector(spec)
+    device = resolve_device(str(tcfg["device"]))
+    model = Detector(spec).to(device)
     ema = ModelEMA(model, tcfg["ema_decay"])
-    criterion = DetectionLoss(spec.num_classes, spec.reg_max, spec.strides)
+    criterion = DetectionLoss(spec.num_classes, spec.reg_max, spec.strides).to(device)
     decay, no_decay = [], []
     for name, p in model.named_parameters():
         (no_decay if p.ndim <= 1 or name.endswith("alpha") else decay).append(p)
@@ -265,24 +291,39 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         [{"params": decay, "weight_decay": tcfg["weight_decay"]}, {"params": no_decay, "weight_decay": 0.0}], lr=tcfg["lr"]
     )
     total_steps = tcfg["epochs"] * tcfg["steps_per_epoch"]
-    schedule = lambda step: min(1.0, (step + 1) / max(tcfg["warmup_steps"], 1)) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * step / total_steps)))  # noqa: E731
+    max_wall_s = float(tcfg["max_wall_s"])
+    started = time.time()
+    step = 0
+
+    def progress_fraction() -> float:
+        """How far through the schedule: steps done, or wall time spent when that is further."""
+        by_time = (time.time() - started) / max_wall_s if max_wall_s > 0 else 0.0
+        return min(1.0, max(step / total_steps, by_time))
+
+    schedule = lambda _: min(1.0, (step + 1) / max(tcfg["warmup_steps"], 1)) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress_fraction())))  # noqa: E731
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, schedule)
     val_loader = DataLoader(val_ds, batch_size=4, shuffle=False, collate_fn=collate)
     generator = torch.Generator().manual_seed(config["seed"])
+    workers = int(tcfg["loader_workers"])
 
     rows: list[dict[str, Any]] = []
     best = -1.0
-    started = time.time()
-    step = 0
     for epoch in range(1, tcfg["epochs"] + 1):
-        train_ds.epoch = epoch
+        if epoch > 1 and progress_fraction() >= 1.0:  # the first epoch always runs, so a checkpoint exists
+            print(f"[{task}] wall-clock budget of {max_wall_s:.0f} s spent after {epoch - 1} epochs ({step} steps)", flush=True)
+            break
+        train_ds.epoch = epoch  # read by the loader's workers, which start afresh each epoch
         model.train()
         sampler = torch.utils.data.RandomSampler(train_ds, replacement=True, num_samples=tcfg["steps_per_epoch"] * tcfg["batch_size"], generator=generator)
-        loader = DataLoader(train_ds, batch_size=tcfg["batch_size"], sampler=sampler, collate_fn=collate, num_workers=0)
+        loader = DataLoader(
+            train_ds, batch_size=tcfg["batch_size"], sampler=sampler, collate_fn=collate, num_workers=workers,
+            pin_memory=device.type == "cuda", prefetch_factor=4 if workers else None,
+        )
         sums = {"loss": 0.0, "box": 0.0, "cls": 0.0, "dfl": 0.0}
+        batches = 0
         bar = tqdm(loader, desc=f"{task} epoch {epoch}/{tcfg['epochs']}", disable=not progress, dynamic_ncols=True)
         for batch in bar:
-            maps, cur, boxes = _run_batch(model, task, batch)
+            maps, cur, boxes = _run_batch(model, task, batch, device)
             loss, parts = criterion(maps, boxes)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -291,14 +332,17 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
             scheduler.step()
             ema.update(model)
             step += 1
+            batches += 1
             sums["loss"] += float(loss.detach())
             for k, v in parts.items():
                 sums[k] += v
             bar.set_postfix(loss=f"{float(loss.detach()):.3f}")
+            if progress_fraction() >= 1.0:
+                break  # the wall-clock budget ends the schedule mid-epoch
             if not progress and step % 10 == 0:
                 print(f"[{task}] epoch {epoch} step {step}/{total_steps} loss {float(loss.detach()):.3f} ({time.time() - started:.0f} s)", flush=True)
-        n = max(len(loader), 1)
-        metrics = validate(ema.ema, task, val_loader, tcfg["val_score_threshold"])
+        n = max(batches, 1)
+        metrics = validate(ema.ema, task, val_loader, tcfg["val_score_threshold"], device)
         row = {"epoch": epoch, **{k: v / n for k, v in sums.items()}, "lr": optimizer.param_groups[0]["lr"], "elapsed_s": round(time.time() - started, 1)}
         row.update({f"val_{k}": v for k, v in metrics.items() if k != "num_gt"})
         if task == "global" and spec.stff_levels:
