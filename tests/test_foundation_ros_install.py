@@ -41,8 +41,8 @@ def test_install_tree_has_share_files() -> None:
 
 
 def test_pipeline_points_fast_dds_at_the_shipped_profile_unless_the_user_chose_one(monkeypatch) -> None:
-    """The profile that makes a restarted node discoverable in 250 ms, not 3 s, is the default;
-    a profile the user exported is left alone."""
+    """The profile that makes a restarted node discoverable in 250 ms, not 3 s, and resends what a
+    late joiner missed within 100 ms, is the default; a profile the user exported is left alone."""
     import xml.etree.ElementTree as ElementTree
 
     from gldt_ros.pipeline import DDS_PROFILE_VARIABLE, use_graph_dds_profile
@@ -54,8 +54,23 @@ def test_pipeline_points_fast_dds_at_the_shipped_profile_unless_the_user_chose_o
     namespace = {"dds": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
     period = ElementTree.parse(profile).find(".//dds:leaseAnnouncement/dds:nanosec", namespace)
     assert period is not None and int(period.text) <= 250_000_000
+    heartbeat = ElementTree.parse(profile).find(".//dds:data_writer/dds:times/dds:heartbeatPeriod/dds:nanosec", namespace)
+    assert heartbeat is not None and int(heartbeat.text) <= 100_000_000, "late joiners must not wait 3 s for a lost sample"
     monkeypatch.setenv(DDS_PROFILE_VARIABLE, "/etc/my_profile.xml")
     assert use_graph_dds_profile() == "/etc/my_profile.xml"
+
+
+def test_node_processes_get_the_malloc_settings_unless_the_user_set_them_or_opted_out(monkeypatch) -> None:
+    from gldt_ros.pipeline import NODE_MALLOC_SETTINGS, node_environment, parse_args
+
+    for key in NODE_MALLOC_SETTINGS:
+        monkeypatch.delenv(key, raising=False)
+    assert parse_args([]).tune_malloc and not parse_args(["--default-malloc"]).tune_malloc
+    tuned = node_environment(tune_malloc=True)
+    assert all(tuned[key] == value for key, value in NODE_MALLOC_SETTINGS.items())
+    assert not set(NODE_MALLOC_SETTINGS) & set(node_environment(tune_malloc=False))
+    monkeypatch.setenv("MALLOC_ARENA_MAX", "8")
+    assert node_environment(tune_malloc=True)["MALLOC_ARENA_MAX"] == "8", "a value the user exported wins"
 
 
 def test_config_matches_parameter_schema() -> None:

@@ -14,8 +14,10 @@ from std_msgs.msg import String  # noqa: E402
 from gldt_ros.graph_links import (  # noqa: E402
     MATCHED_PUBLISHERS,
     MATCHED_SUBSCRIPTIONS,
+    UNKNOWN_NODE_NAME,
     link_key_values,
     missing_links,
+    node_endpoint_gids,
     own_link_counts,
     parse_link_counts,
     reporting_nodes_missing,
@@ -33,6 +35,48 @@ class SeenEndpoints:
 
     def count_publishers(self, topic: str) -> int:
         return self.publishers.get(topic, 0)
+
+
+class GraphWithOwners:
+    """An observer's graph queries over ``(kind, topic, node name, gid)`` endpoint rows."""
+
+    def __init__(self, rows: list[tuple[str, str, str, bytes]]) -> None:
+        self.rows = rows
+        self.topics_listed = 0
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
+        self.topics_listed += 1
+        return [(topic, ["any"]) for topic in sorted({row[1] for row in self.rows})]
+
+    def _infos(self, kind: str, topic: str) -> list[object]:
+        from types import SimpleNamespace
+
+        namespace = lambda name: "_NODE_NAMESPACE_UNKNOWN_" if name == UNKNOWN_NODE_NAME else "/"  # noqa: E731
+        return [SimpleNamespace(node_name=name, node_namespace=namespace(name), endpoint_gid=list(gid))
+                for k, t, name, gid in self.rows if k == kind and t == topic]
+
+    def get_publishers_info_by_topic(self, topic: str) -> list[object]:
+        return self._infos("pub", topic)
+
+    def get_subscriptions_info_by_topic(self, topic: str) -> list[object]:
+        return self._infos("sub", topic)
+
+
+def test_endpoint_ids_of_a_node_and_of_endpoints_whose_owner_is_not_known_yet() -> None:
+    graph = GraphWithOwners([
+        ("pub", "/gldt/rois", "mode_scheduler", b"old-rois"),
+        ("sub", "/gldt/detections", "mode_scheduler", b"old-dets"),
+        ("pub", "/gldt/rois", UNKNOWN_NODE_NAME, b"new-rois"),  # the restarted process, name not in yet
+        ("sub", "/gldt/detections", "jptrack_tracker", b"tracker-dets"),
+        ("pub", "/diagnostics", "mode_scheduler", b"diag"),  # infrastructure: never counted
+    ])
+    assert node_endpoint_gids(graph, "mode_scheduler", "/") == {"/gldt/rois": {b"old-rois"}, "/gldt/detections": {b"old-dets"}}
+    with_unnamed = node_endpoint_gids(graph, "mode_scheduler", "/", include_unnamed=True)
+    assert with_unnamed == {"/gldt/rois": {b"old-rois", b"new-rois"}, "/gldt/detections": {b"old-dets"}}
+    listed = graph.topics_listed
+    only_rois = node_endpoint_gids(graph, "mode_scheduler", "/", topics=["/gldt/rois"], include_unnamed=True)
+    assert only_rois == {"/gldt/rois": {b"old-rois", b"new-rois"}}
+    assert graph.topics_listed == listed, "named topics must be queried directly, not by listing the graph"
 
 
 def test_link_counts_survive_the_diagnostics_round_trip_and_foreign_keys_are_ignored() -> None:

@@ -157,17 +157,18 @@ def main(argv: Sequence[str] | None = None) -> int:
                     print(f"bench_restart: {error}", file=sys.stderr)
                     return 1
             results[victim] = {key: statistics.median(r[key] for r in runs) for key in runs[0]}
+            results[victim]["worst_restart_to_tracks"] = max(r["restart_to_tracks"] for r in runs)
     if args.json:
         print(json.dumps(results, indent=2))
         return 0
-    print(f"restart of one node, lockstep replay of {args.bag} (median of {args.repeats}); seconds")
-    print(f"{'node':<18} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'goal':>5} {'cold start':>11} {'ratio':>6}")
+    print(f"restart of one node, lockstep replay of {args.bag} (median of {args.repeats}, and the worst run); seconds")
+    print(f"{'node':<18} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'worst':>6} {'goal':>5} {'cold start':>11} {'ratio':>6}")
     for victim, r in results.items():
-        verdict = "OK" if r["restart_to_tracks"] <= GOAL_S else "MISS"
+        verdict = "OK" if r["worst_restart_to_tracks"] <= GOAL_S else "MISS"  # every restart, not the typical one
         ratio = r["restart_to_tracks"] / r["cold_start_to_tracks"]
         print(
             f"{victim:<18} {r['start']:6.2f} {r['relink']:7.2f} {r['answer']:7.2f} {r['restart_to_tracks']:10.2f} "
-            f"{verdict:>5} {r['cold_start_to_tracks']:11.2f} {ratio:6.2f}"
+            f"{r['worst_restart_to_tracks']:6.2f} {verdict:>5} {r['cold_start_to_tracks']:11.2f} {ratio:6.2f}"
         )
     return 0
 

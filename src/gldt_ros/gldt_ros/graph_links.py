@@ -80,17 +80,31 @@ def missing_links(observer: Node, reports: dict[str, dict[str, int]]) -> list[st
     return missing
 
 
-def node_endpoint_gids(observer: Node, node_name: str, namespace: str) -> dict[str, set[bytes]]:
+#: The node name rmw reports for an endpoint whose process has not yet told this one which node
+#: owns it (``ros_discovery_info`` arrives after the endpoint itself, up to a second later).
+UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
+
+
+def node_endpoint_gids(
+    observer: Node, node_name: str, namespace: str, topics: Iterable[str] | None = None, include_unnamed: bool = False
+) -> dict[str, set[bytes]]:
     """For each data topic of the node ``namespace/node_name``, the ids of its endpoints that
     ``observer`` can see: a restarted process is told apart from the dead one by new ids (a killed
-    process stays visible until its DDS lease runs out)."""
+    process stays visible until its DDS lease runs out).
+
+    ``topics`` limits the search to those topics (cheaper than listing the whole graph when
+    polling). ``include_unnamed`` also counts endpoints whose owner is not known yet: DDS has
+    matched them, so data can already flow, while the graph API still waits for the owner's name.
+    """
     gids: dict[str, set[bytes]] = {}
+    names = [topic for topic, _ in observer.get_topic_names_and_types()] if topics is None else list(topics)
     for info_by_topic in (observer.get_publishers_info_by_topic, observer.get_subscriptions_info_by_topic):
-        for topic, _ in observer.get_topic_names_and_types():
+        for topic in names:
             if topic in _INFRASTRUCTURE_TOPICS:
                 continue
             for info in info_by_topic(topic):
-                if info.node_name == node_name and info.node_namespace.rstrip("/") == namespace.rstrip("/"):
+                named = info.node_name == node_name and info.node_namespace.rstrip("/") == namespace.rstrip("/")
+                if named or (include_unnamed and info.node_name == UNKNOWN_NODE_NAME):
                     gids.setdefault(topic, set()).add(bytes(info.endpoint_gid))
     return gids
 

@@ -142,9 +142,11 @@ class GraphDriver(Node):
     def _new_process_visible(self, name: str, dead_endpoints: dict[str, set[bytes]]) -> bool:
         """Whether this process sees the restarted node's own endpoints (not the dead ones) on
         every topic the dead process had."""
-        now = node_endpoint_gids(self, name, self.get_namespace())
         if not dead_endpoints:
-            return bool(now)
+            return bool(node_endpoint_gids(self, name, self.get_namespace()))
+        # Unnamed endpoints count: DDS matches a new process's endpoints about a second before
+        # the graph API learns their owner, and wait_until_linked judges the links themselves.
+        now = node_endpoint_gids(self, name, self.get_namespace(), topics=dead_endpoints, include_unnamed=True)
         return all(now.get(topic, set()) - gids for topic, gids in dead_endpoints.items())
 
     def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:

@@ -460,12 +460,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--bag", type=Path, default=REPO_ROOT / "bags" / "halmstad_v_drone_001")
     parser.add_argument("--minutes", type=float, default=10.0, help="replay duration (default 10)")
     parser.add_argument("--rate", type=float, default=30.0, help="frames per second published (default 30)")
-    parser.add_argument("--warmup", type=float, default=30.0, help="seconds of replay before the first memory sample counts")
+    parser.add_argument(
+        "--warmup", type=float, default=60.0,
+        help="seconds of replay before the first memory sample counts (frame_pair_buffer fills its buffers for most of the first minute)",
+    )
     parser.add_argument("--sample-period", type=float, default=5.0, help="seconds between memory samples")
     parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: the package's)")
     parser.add_argument("--startup-only", action="store_true", help="stop at the first non-empty track (issue #8)")
     parser.add_argument("--import-times", action="store_true", help="also measure each node module's import time")
     parser.add_argument("--max-restarts", type=int, default=0, help="restarts of a node that dies (default 0: stop)")
+    parser.add_argument("--default-malloc", action="store_true", help="nodes with glibc's default malloc settings (the A/B peer of pipeline's tuned ones)")
     parser.add_argument("--json", type=Path, help="write the full report (with every sample) here")
     args = parser.parse_args(argv)
     if args.rate <= 0 or args.minutes <= 0 or args.sample_period <= 0:
@@ -502,7 +506,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     from gldt_ros.pipeline import NODES, NodeProcesses, _supervise_until, use_graph_dds_profile
     from gldt_ros.pipeline import parse_args as pipeline_args
 
-    pipeline_argv = ["--bag", str(args.bag), "--max-restarts", str(args.max_restarts)]
+    pipeline_argv = ["--bag", str(args.bag), "--max-restarts", str(args.max_restarts)] + (["--default-malloc"] if args.default_malloc else [])
     pargs = pipeline_args(pipeline_argv + (["--params", str(args.params)] if args.params else []))
     frames = group_frames(list(iter_bag(args.bag)), IMAGE_TYPES_SET)
     if not frames:
