@@ -46,8 +46,7 @@ class ModeSchedulerNode(GldtNode):
         self._size: tuple[int, int] | None = None
         self._last_stamp: float | None = None
         self._plans: dict[int, Any] = {}
-        self._awaiting_report: int | None = None
-        self._awaiting_stamp = 0.0
+        self._awaiting_report: int | None = None  # frame index of the LOCAL frame whose detections are awaited
         self._awaiting_since = 0.0
         self.create_timer(0.05, self._check_report_timeout)
         self._queue: deque[TrackPredictions] = deque()
@@ -68,12 +67,11 @@ class ModeSchedulerNode(GldtNode):
         of stalling every following frame until ``report_timeout``. The newest queued predictions
         carry what the tracker knows last. Stamps, not frame indices: a restarted frame buffer
         counts frames from 0 again."""
+        if self._awaiting_report is None:
+            return False
+        awaited_stamp = self._plans[self._awaiting_report].stamp
         newest = self._queue[-1]
-        return (
-            self._awaiting_report is not None
-            and stamp_seconds(newest.header.stamp) > self._awaiting_stamp
-            and stamp_seconds(newest.last_tracked_stamp) < self._awaiting_stamp
-        )
+        return stamp_seconds(newest.header.stamp) > awaited_stamp and stamp_seconds(newest.last_tracked_stamp) < awaited_stamp
 
     def _check_report_timeout(self) -> None:
         """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph.
@@ -123,7 +121,7 @@ class ModeSchedulerNode(GldtNode):
             del self._plans[old]
         local = plan.mode.name == "LOCAL"
         if local:
-            self._awaiting_report, self._awaiting_stamp = index, stamp
+            self._awaiting_report = index
             self._awaiting_since = time.monotonic()
         state = self.scheduler.state
         roi_msgs = rois_to_msgs(plan.rois, plan.layout.groups)
