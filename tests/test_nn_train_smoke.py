@@ -112,3 +112,17 @@ def test_asking_for_cuda_without_one_is_a_clear_error() -> None:
     with pytest.raises(ValueError, match="sees no CUDA device"):
         resolve_device("cuda")
     assert resolve_device("auto").type == "cpu"
+
+
+def test_without_a_budget_the_learning_rate_follows_warmup_and_cosine_of_the_steps_taken(tmp_path: Path, data_cache: Path) -> None:
+    config = tiny_config("local", data_cache)
+    config["train"].update({"epochs": 2, "steps_per_epoch": 2, "warmup_steps": 3})
+    train("local", config, out_dir=tmp_path / "run", progress=False)
+    with (tmp_path / "run" / "log.csv").open() as fh:
+        rates = [float(row["lr"]) for row in csv.DictReader(fh)]
+    total = 4
+
+    def expected(steps: int) -> float:
+        return config["train"]["lr"] * min(1.0, (steps + 1) / 3) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * steps / total)))
+
+    assert rates == pytest.approx([expected(2), expected(4)])

@@ -295,12 +295,13 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
     started = time.time()
     step = 0
 
-    def progress_fraction() -> float:
+    def progress_fraction(steps_done: int) -> float:
         """How far through the schedule: steps done, or wall time spent when that is further."""
         by_time = (time.time() - started) / max_wall_s if max_wall_s > 0 else 0.0
-        return min(1.0, max(step / total_steps, by_time))
+        return min(1.0, max(steps_done / total_steps, by_time))
 
-    schedule = lambda _: min(1.0, (step + 1) / max(tcfg["warmup_steps"], 1)) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress_fraction())))  # noqa: E731
+    # LambdaLR passes the number of scheduler steps taken so far.
+    schedule = lambda count: min(1.0, (count + 1) / max(tcfg["warmup_steps"], 1)) * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress_fraction(count))))  # noqa: E731
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, schedule)
     val_loader = DataLoader(val_ds, batch_size=4, shuffle=False, collate_fn=collate)
     generator = torch.Generator().manual_seed(config["seed"])
@@ -309,7 +310,7 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
     rows: list[dict[str, Any]] = []
     best = -1.0
     for epoch in range(1, tcfg["epochs"] + 1):
-        if epoch > 1 and progress_fraction() >= 1.0:  # the first epoch always runs, so a checkpoint exists
+        if epoch > 1 and progress_fraction(step) >= 1.0:  # the first epoch always runs, so a checkpoint exists
             print(f"[{task}] wall-clock budget of {max_wall_s:.0f} s spent after {epoch - 1} epochs ({step} steps)", flush=True)
             break
         train_ds.epoch = epoch  # read by the loader's workers, which start afresh each epoch
@@ -337,7 +338,7 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
             for k, v in parts.items():
                 sums[k] += v
             bar.set_postfix(loss=f"{float(loss.detach()):.3f}")
-            if progress_fraction() >= 1.0:
+            if progress_fraction(step) >= 1.0:
                 break  # the wall-clock budget ends the schedule mid-epoch
             if not progress and step % 10 == 0:
                 print(f"[{task}] epoch {epoch} step {step}/{total_steps} loss {float(loss.detach()):.3f} ({time.time() - started:.0f} s)", flush=True)
