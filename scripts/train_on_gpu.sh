@@ -52,7 +52,6 @@ for task_config in global:global_gpu local:local_gpu; do
     task=${task_config%%:*}
     say "data: $task caches with $nproc_all workers"
     "$py" -c "
-import sys
 from gldt_core.nn.train import build_datasets, load_config
 config = load_config('$configs/${task_config#*:}.yaml')
 config['data']['load_workers'] = $nproc_all
