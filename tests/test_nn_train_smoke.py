@@ -104,11 +104,10 @@ def test_wall_clock_budget_ends_the_schedule_after_the_first_step_with_a_checkpo
     assert float(rows[0]["lr"]) == pytest.approx(config["train"]["lr"] * 0.05), "the schedule must have annealed to its floor"
 
 
-def test_asking_for_cuda_without_one_is_a_clear_error() -> None:
+def test_asking_for_cuda_without_one_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
     from gldt_core.nn.train import resolve_device
 
-    if torch.cuda.is_available():
-        pytest.skip("this machine has CUDA")
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # the same on a machine with a GPU
     with pytest.raises(ValueError, match="sees no CUDA device"):
         resolve_device("cuda")
     assert resolve_device("auto").type == "cpu"
