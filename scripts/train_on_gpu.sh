@@ -39,8 +39,8 @@ for task in ("global", "local"):
     model.update({"dual_frame": True, "stff_levels": [2], "stff_windows": [4]} if task == "global" else {"dual_frame": False})
     config = _merge(DEFAULTS, {
         "model": model,
-        "data": {"cache_dir": "/tmp/gldt-smoke", "use_real": False, "synthetic_scenes": 1, "synthetic_frames": 16,
-                 "synthetic_frame_step": 8, "val_frame_step": 600, "val_max_images": 2, "input_size": [128, 128],
+        "data": {"cache_dir": "/tmp/gldt-smoke", "use_real": False, "real_validation": False, "synthetic_val_scenes": 1,
+                 "synthetic_scenes": 1, "synthetic_frames": 16, "synthetic_frame_step": 8, "val_max_images": 2, "input_size": [128, 128],
                  "val_size": [128, 128], "roi": 150, "val_roi": 150},
         "train": {"epochs": 1, "batch_size": 2, "steps_per_epoch": 2, "device": os.environ["DEVICE"], "loader_workers": 2},
     })

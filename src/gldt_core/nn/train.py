@@ -46,6 +46,7 @@ DEFAULTS: dict[str, Any] = {
         "train_frame_step": 10,
         "val_frame_step": 15,
         "use_real": True,
+        "real_validation": True,  # validate on the held-out Halmstad clips (false: synthetic_val_scenes only)
         "synthetic_scenes": 0,  # scenes of gldt_core.sim.presets "train" (0 = real data only)
         "synthetic_frames": 120,
         "synthetic_frame_step": 8,
@@ -149,11 +150,13 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
     data = config["data"]
     seed = config["seed"]
     workers = int(data["load_workers"])
-    split = halmstad_split(data["halmstad_root"])
+    needs_real = data["use_real"] or data["real_validation"]
+    split = halmstad_split(data["halmstad_root"]) if needs_real else {"train": [], "val": []}
     train_pairs, val_pairs = [], []
     if data["use_real"]:
         train_pairs += load_halmstad(data["halmstad_root"], split["train"], data["train_frame_step"], data["cache_dir"], workers)
-    val_pairs += load_halmstad(data["halmstad_root"], split["val"], data["val_frame_step"], data["cache_dir"], workers)
+    if data["real_validation"]:
+        val_pairs += load_halmstad(data["halmstad_root"], split["val"], data["val_frame_step"], data["cache_dir"], workers)
     synthetic: list = []
     if data["synthetic_scenes"]:
         synthetic = load_synthetic("train", data["synthetic_scenes"], data["synthetic_frames"], data["synthetic_frame_step"], data["synthetic_scale"], data["cache_dir"], workers)
@@ -162,6 +165,8 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
         val_pairs += load_synthetic("val", data["synthetic_val_scenes"], data["synthetic_frames"], data["synthetic_frame_step"] * 2, data["synthetic_scale"], data["cache_dir"], workers)
     if not train_pairs:
         raise ValueError("no training data: use_real is false and no synthetic scenes were produced")
+    if not val_pairs:
+        raise ValueError("no validation data: real_validation is false and synthetic_val_scenes is 0")
     w, h = data["input_size"]
     if task == "global":
         train_ds = GlobalPairDataset(train_pairs, (w, h), train=True, seed=seed)
