@@ -45,7 +45,7 @@ def test_pipeline_points_fast_dds_at_the_shipped_profile_unless_the_user_chose_o
     late joiner missed within 100 ms, is the default; a profile the user exported is left alone."""
     import xml.etree.ElementTree as ElementTree
 
-    from gldt_ros.pipeline import DDS_PROFILE_VARIABLE, use_graph_dds_profile
+    from gldt_ros.dds_profile import DDS_PROFILE_VARIABLE, use_graph_dds_profile
 
     monkeypatch.delenv(DDS_PROFILE_VARIABLE, raising=False)
     profile = Path(use_graph_dds_profile())
@@ -58,6 +58,33 @@ def test_pipeline_points_fast_dds_at_the_shipped_profile_unless_the_user_chose_o
     assert heartbeat is not None and int(heartbeat.text) <= 100_000_000, "late joiners must not wait 3 s for a lost sample"
     monkeypatch.setenv(DDS_PROFILE_VARIABLE, "/etc/my_profile.xml")
     assert use_graph_dds_profile() == "/etc/my_profile.xml"
+
+
+PARTICIPANT_PROBE = "import rclpy; rclpy.init(); rclpy.create_node('profile_probe').destroy_node(); rclpy.shutdown(); print('up')"
+
+
+def test_fast_dds_loads_the_shipped_profile_without_a_parser_error(tmp_path: Path) -> None:
+    """Fast DDS falls back to its defaults on a profile it cannot parse, logging an error and
+    nothing else: a typo would silently undo every setting above. A participant started with the
+    shipped profile must log no XMLPARSER error; the same profile with one element misspelt must,
+    which shows the probe can fail."""
+    import sys
+
+    shipped = INSTALL / "share" / "gldt_ros" / "config" / "fastdds_profile.xml"
+    misspelt = tmp_path / "misspelt.xml"
+    misspelt.write_text(shipped.read_text().replace("healthy_check_timeout_ms>", "healthy_check_timeout>"))
+    outputs = {}
+    for profile in (shipped, misspelt):
+        env = isolated_ros_env()
+        env["FASTRTPS_DEFAULT_PROFILES_FILE"] = str(profile)
+        result = subprocess.run(
+            [sys.executable, "-c", PARTICIPANT_PROBE],
+            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, timeout=60,
+        )
+        assert result.returncode == 0 and result.stdout.rstrip().endswith("up"), result.stdout
+        outputs[profile] = result.stdout  # Fast DDS logs its errors to stdout
+    assert "XMLPARSER" not in outputs[shipped], outputs[shipped]
+    assert "XMLPARSER" in outputs[misspelt] and "healthy_check_timeout" in outputs[misspelt]
 
 
 def test_node_processes_get_the_malloc_settings_unless_the_user_set_them_or_opted_out(monkeypatch) -> None:

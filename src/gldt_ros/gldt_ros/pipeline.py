@@ -22,6 +22,8 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
+from gldt_ros.dds_profile import RestartProfiles, use_graph_dds_profile
+
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
 
 
@@ -33,24 +35,6 @@ def default_params_file() -> Path:
         return Path(get_package_share_directory("gldt_ros")) / "config" / "gldt.yaml"
     except Exception:  # noqa: BLE001 - the ament index is optional when run from source
         return Path(__file__).resolve().parents[1] / "config" / "gldt.yaml"
-
-
-#: Environment variable through which Fast DDS (rmw_fastrtps_cpp) loads default participant settings.
-DDS_PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
-
-
-def use_graph_dds_profile() -> str:
-    """Point Fast DDS at ``config/fastdds_profile.xml`` for this process and the nodes it starts,
-    unless the user exported a profile of their own; returns the profile in use.
-
-    The profile announces participants every 250 ms instead of every 3 s, so a restarted node is
-    matched by its peers within its own start-up time, and has writers send heartbeats every
-    100 ms instead of every 3 s, so a sample a late-joining reader missed is sent again at once
-    (the file says what was measured). Other RMW implementations ignore the variable. Must run
-    before ``rclpy.init``.
-    """
-    profile = default_params_file().with_name("fastdds_profile.xml")
-    return os.environ.setdefault(DDS_PROFILE_VARIABLE, str(profile))
 
 
 #: glibc malloc settings for the node processes, applied where the user has not set them. A node
@@ -138,6 +122,12 @@ def node_command(name: str, args: argparse.Namespace) -> list[str]:
     return command
 
 
+def spare_request(name: str, arguments: Sequence[str], environment: dict[str, str]) -> str:
+    """The line that tells a warm spare (:mod:`gldt_ros.spare`) which node to become, with which
+    command-line arguments and extra environment entries."""
+    return json.dumps({"node": name, "arguments": list(arguments), "environment": environment}) + "\n"
+
+
 #: Seconds after a restart before a new spare is started (its imports would compete for the CPU
 #: with the restarted node's start-up).
 SPARE_DELAY_S = 5.0
@@ -148,7 +138,9 @@ class NodeProcesses:
 
     While supervising it keeps one warm spare (:mod:`gldt_ros.spare`, unless ``--no-spare``): an
     interpreter with the node modules imported, which becomes the first node that dies, so a
-    restart skips the interpreter start and the imports.
+    restart skips the interpreter start and the imports. A restarted node also gets a DDS
+    participant id of its own (:class:`gldt_ros.dds_profile.RestartProfiles`), so it does not
+    inherit the dead process's shared-memory ports.
     """
 
     def __init__(self, args: argparse.Namespace) -> None:
@@ -159,14 +151,16 @@ class NodeProcesses:
         self.spare: subprocess.Popen[bytes] | None = None
         self._last_restart = float("-inf")
         self._lock = threading.Lock()
+        self._restart_profiles = RestartProfiles()
         for name in NODES:
             self._start(name)
 
-    def _start(self, name: str) -> None:
+    def _start(self, name: str, restart: bool = False) -> None:
+        environment = self._restart_profiles.environment_for_restart() if restart else {}
         spare, self.spare = self.spare, None
         if spare is not None and spare.poll() is None and spare.stdin is not None:
             try:
-                request = json.dumps([name, *node_command(name, self.args)[3:]]) + "\n"
+                request = spare_request(name, node_command(name, self.args)[3:], environment)
                 spare.stdin.write(request.encode())
                 spare.stdin.close()
                 self.processes[name] = spare
@@ -174,7 +168,9 @@ class NodeProcesses:
                 return
             except OSError:
                 self._discard_spare(spare)  # it died meanwhile; start from scratch
-        process = subprocess.Popen(node_command(name, self.args), start_new_session=True, env=node_environment(self.args.tune_malloc))
+        process = subprocess.Popen(
+            node_command(name, self.args), start_new_session=True, env=node_environment(self.args.tune_malloc) | environment
+        )
         self.processes[name] = process
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
@@ -247,7 +243,7 @@ class NodeProcesses:
                 self.restarts[name] += 1
                 code = self.processes[name].returncode
                 print(f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})", flush=True)
-                self._start(name)
+                self._start(name, restart=True)
                 self._last_restart = time.monotonic()
                 restarted.append(name)
             self.keep_spare()
@@ -278,6 +274,7 @@ class NodeProcesses:
             if code not in (0, -signal.SIGINT, 130):
                 print(f"pipeline: node {name} exited with code {code}", flush=True)
                 unclean += 1
+        self._restart_profiles.close()
         return unclean
 
 

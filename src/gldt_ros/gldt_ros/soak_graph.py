@@ -503,7 +503,8 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
 
     from gldt_ros import qos, topics
     from gldt_ros.bag_io import IMAGE_TYPES_SET, iter_bag
-    from gldt_ros.pipeline import NODES, NodeProcesses, _supervise_until, use_graph_dds_profile
+    from gldt_ros.dds_profile import use_graph_dds_profile
+    from gldt_ros.pipeline import NODES, NodeProcesses, _supervise_until
     from gldt_ros.pipeline import parse_args as pipeline_args
 
     pipeline_argv = ["--bag", str(args.bag), "--max-restarts", str(args.max_restarts)] + (["--default-malloc"] if args.default_malloc else [])
