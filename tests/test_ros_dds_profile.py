@@ -71,6 +71,20 @@ def test_restart_profiles_hand_out_fresh_ids_under_the_shipped_profile_only(monk
     assert RestartProfiles().environment_for_restart() == {}, "a profile the user chose is left alone"
 
 
+def test_a_restart_without_a_profile_copy_falls_back_to_the_shipped_profile(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No room for the copy (say /tmp is full) must not stop the restart itself."""
+    monkeypatch.setenv(DDS_PROFILE_VARIABLE, str(dds_profile.shipped_profile()))
+
+    def full(*_args, **_kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(dds_profile.tempfile, "mkdtemp", full)
+    assert RestartProfiles().environment_for_restart() == {}
+    assert "No space left on device" in capsys.readouterr().out
+
+
 def test_a_restart_copy_loads_cleanly_and_fast_dds_takes_its_participant_id(monkeypatch: pytest.MonkeyPatch) -> None:
     """The id must reach Fast DDS: with the shipped profile a lone participant takes id 0 (the
     lowest free); with a restart copy it takes the copy's id, which shows in its port number."""

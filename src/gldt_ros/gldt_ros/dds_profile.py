@@ -77,11 +77,16 @@ class RestartProfiles:
         shipped = shipped_profile()
         if os.environ.get(DDS_PROFILE_VARIABLE) != str(shipped):
             return {}
-        if self._folder is None:
-            self._folder = Path(tempfile.mkdtemp(prefix="gldt_dds_"))
         participant_id = next(self._ids)
-        copy = self._folder / f"fastdds_profile_participant_{participant_id}.xml"
-        copy.write_text(with_participant_id(shipped.read_text(), participant_id))
+        try:
+            if self._folder is None:
+                self._folder = Path(tempfile.mkdtemp(prefix="gldt_dds_"))
+            copy = self._folder / f"fastdds_profile_participant_{participant_id}.xml"
+            copy.write_text(with_participant_id(shipped.read_text(), participant_id))
+        except (OSError, ValueError) as error:
+            # A restart must not fail for want of a faster one: fall back to the shipped profile.
+            print(f"pipeline: no profile copy for the restart ({error}); Fast DDS picks the id", flush=True)
+            return {}
         return {DDS_PROFILE_VARIABLE: str(copy)}
 
     def close(self) -> None:
