@@ -56,6 +56,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids passed to the tracker (1 drone, 2 bird, 3 airplane); empty = all"),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers (CUDA, TensorRT on Jetson)"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
+        ParamSpec("pair_queue_depth", 1, "Frame pairs kept while the detector runs; 1 = only the newest, so a slow detector skips pairs instead of falling behind", 1, 100),
         _DIAG_PERIOD,
     ),
     "local_detector": (

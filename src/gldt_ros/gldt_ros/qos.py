@@ -28,6 +28,13 @@ def camera_qos(policy: str) -> QoSProfile:
 
 RELIABLE = QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 
+
+def newest_first(depth: int) -> QoSProfile:
+    """Reliable, keeping only the ``depth`` newest samples: for an input whose handler is slower
+    than its rate, where working on the newest sample beats working through a backlog (a frame
+    pair that waited behind three others would give the planner tracks 300 ms old)."""
+    return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
+
 LATCHED_STATE = QoSProfile(
     depth=1,
     reliability=ReliabilityPolicy.RELIABLE,

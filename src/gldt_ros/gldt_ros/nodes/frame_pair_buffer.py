@@ -26,6 +26,9 @@ from gldt_ros.node_base import GldtNode, run_node
 #: Frames kept while waiting for the scheduler's answer (the answer normally comes within one).
 PENDING_FRAMES = 8
 
+#: Frame pairs the publisher keeps for resending (see ``__init__``).
+PAIRS_KEPT = 2
+
 
 class FramePairBuffer(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
@@ -52,7 +55,11 @@ class FramePairBuffer(GldtNode):
             self.create_subscription(Image, topics.IMAGE_RAW, self.guarded(self.on_image, "image"), camera_qos)
         self.create_subscription(SchedulerState, topics.SCHEDULER_STATE, self.guarded(self.on_decision, "decision"), qos.RELIABLE)
         self.ticks = self.create_publisher(FrameTick, topics.FRAME_TICKS, qos.RELIABLE)
-        self.pairs = self.create_publisher(FramePair, topics.FRAME_PAIRS, qos.RELIABLE)
+        # A pair is 2 MB, and a reliable writer keeps its last `depth` samples for resending. The
+        # global detector only wants the newest pair (its pair_queue_depth), so two are enough.
+        # With thirty (qos.RELIABLE) this process settled at about 200 MiB instead of 146 MiB
+        # (gldt_ros.soak_graph, 10 min), in steps as the writer's history filled.
+        self.pairs = self.create_publisher(FramePair, topics.FRAME_PAIRS, qos.newest_first(PAIRS_KEPT))
         self.crops = self.create_publisher(RoiCrops, topics.ROI_CROPS, qos.RELIABLE)
         # Debug overlay: drawn here, where the full frame is, and only while someone watches.
         self.debug_image = self.create_publisher(Image, topics.DEBUG_IMAGE, 2)

@@ -27,7 +27,11 @@ class GlobalDetectorNode(GldtNode):
         super().__init__("global_detector", **kwargs)
         self.detector = GlobalDetector(**detector_kwargs(self.param))
         self.classes = parse_classes(self.param("classes"))
-        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), qos.RELIABLE)
+        # AM-YOLO takes longer than a frame period here (about 100 ms on 2 cores), so during a GD
+        # stretch at 30 Hz pairs arrive faster than it answers; queueing them put whole seconds
+        # between camera and tracks. By default it skips to the newest pair instead.
+        pairs_qos = qos.newest_first(int(self.param("pair_queue_depth")))
+        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), pairs_qos)
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
 
     def on_pair(self, pair: FramePair) -> None:
