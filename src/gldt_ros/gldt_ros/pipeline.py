@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from gldt_ros.dds_profile import RestartProfiles, use_graph_dds_profile
+from gldt_ros.dds_profile import use_graph_dds_profile
 
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
 
@@ -122,12 +122,6 @@ def node_command(name: str, args: argparse.Namespace) -> list[str]:
     return command
 
 
-def spare_request(name: str, arguments: Sequence[str], environment: dict[str, str]) -> str:
-    """The line that tells a warm spare (:mod:`gldt_ros.spare`) which node to become, with which
-    command-line arguments and extra environment entries."""
-    return json.dumps({"node": name, "arguments": list(arguments), "environment": environment}) + "\n"
-
-
 #: Seconds after a restart before a new spare is started (its imports would compete for the CPU
 #: with the restarted node's start-up).
 SPARE_DELAY_S = 5.0
@@ -138,9 +132,7 @@ class NodeProcesses:
 
     While supervising it keeps one warm spare (:mod:`gldt_ros.spare`, unless ``--no-spare``): an
     interpreter with the node modules imported, which becomes the first node that dies, so a
-    restart skips the interpreter start and the imports. A restarted node also gets a DDS
-    participant id of its own (:class:`gldt_ros.dds_profile.RestartProfiles`), so it does not
-    inherit the dead process's shared-memory ports.
+    restart skips the interpreter start and the imports.
     """
 
     def __init__(self, args: argparse.Namespace) -> None:
@@ -151,16 +143,14 @@ class NodeProcesses:
         self.spare: subprocess.Popen[bytes] | None = None
         self._last_restart = float("-inf")
         self._lock = threading.Lock()
-        self._restart_profiles = RestartProfiles()
         for name in NODES:
             self._start(name)
 
-    def _start(self, name: str, restart: bool = False) -> None:
-        environment = self._restart_profiles.environment_for_restart() if restart else {}
+    def _start(self, name: str) -> None:
         spare, self.spare = self.spare, None
         if spare is not None and spare.poll() is None and spare.stdin is not None:
             try:
-                request = spare_request(name, node_command(name, self.args)[3:], environment)
+                request = json.dumps([name, *node_command(name, self.args)[3:]]) + "\n"
                 spare.stdin.write(request.encode())
                 spare.stdin.close()
                 self.processes[name] = spare
@@ -168,9 +158,7 @@ class NodeProcesses:
                 return
             except OSError:
                 self._discard_spare(spare)  # it died meanwhile; start from scratch
-        process = subprocess.Popen(
-            node_command(name, self.args), start_new_session=True, env=node_environment(self.args.tune_malloc) | environment
-        )
+        process = subprocess.Popen(node_command(name, self.args), start_new_session=True, env=node_environment(self.args.tune_malloc))
         self.processes[name] = process
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
@@ -243,7 +231,7 @@ class NodeProcesses:
                 self.restarts[name] += 1
                 code = self.processes[name].returncode
                 print(f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})", flush=True)
-                self._start(name, restart=True)
+                self._start(name)
                 self._last_restart = time.monotonic()
                 restarted.append(name)
             self.keep_spare()
@@ -274,7 +262,6 @@ class NodeProcesses:
             if code not in (0, -signal.SIGINT, 130):
                 print(f"pipeline: node {name} exited with code {code}", flush=True)
                 unclean += 1
-        self._restart_profiles.close()
         return unclean
 
 

@@ -6,18 +6,15 @@ OpenCV, onnxruntime and the core (about 0.5 s of a 2-core machine, more under lo
 node even starts DDS discovery. ``pipeline`` keeps one spare while it supervises the graph and
 hands it the first node that dies (:class:`gldt_ros.pipeline.NodeProcesses`).
 
-Protocol: one line on stdin, a JSON object ``{"node": NAME, "arguments": [...], "environment":
-{...}}`` (:func:`gldt_ros.pipeline.spare_request`): the node, its command-line arguments
-(``--ros-args ...``) and environment entries to set first (the DDS profile of a restarted node,
-which Fast DDS reads when the node joins). The spare then runs that node's ``main`` as if started
-with them. End of input without a line (the pipeline stopped) exits with 0.
+Protocol: one line on stdin, a JSON list of the node name and its command-line arguments
+(``--ros-args ...``); the spare then runs that node's ``main`` as if started with them. End of
+input without a line (the pipeline stopped) exits with 0.
 """
 
 from __future__ import annotations
 
 import importlib
 import json
-import os
 import sys
 from typing import TextIO
 
@@ -27,25 +24,13 @@ from gldt_ros.pipeline import NODES
 def become_node(request_line: str) -> int:
     """Run the node named in ``request_line`` (see the module docstring) until it stops."""
     try:
-        request = json.loads(request_line)
-        name, arguments, environment = request["node"], request["arguments"], request["environment"]
-    except (ValueError, TypeError, KeyError) as error:
-        print(f"[gldt] spare: bad request {request_line.strip()!r}: {type(error).__name__} {error}", flush=True)
+        name, *arguments = json.loads(request_line)
+    except (ValueError, TypeError) as error:
+        print(f"[gldt] spare: bad request {request_line.strip()!r}: {error}", flush=True)
         return 2
-    strings = (
-        isinstance(arguments, list)
-        and all(isinstance(a, str) for a in arguments)
-        and isinstance(environment, dict)
-        and all(isinstance(v, str) for v in environment.values())
-    )
-    if name not in NODES or not strings:
-        print(
-            f"[gldt] spare: bad request {request_line.strip()!r}: expected one of {list(NODES)}, "
-            "a list of string arguments and a string-to-string environment",
-            flush=True,
-        )
+    if name not in NODES or not all(isinstance(a, str) for a in arguments):
+        print(f"[gldt] spare: bad request {request_line.strip()!r}: expected one of {list(NODES)} and string arguments", flush=True)
         return 2
-    os.environ.update(environment)
     module = importlib.import_module(f"gldt_ros.nodes.{name}")
     sys.argv = [module.__name__, *arguments]  # rclpy.init reads the ROS arguments from sys.argv
     return int(module.main())
