@@ -17,28 +17,34 @@ from camera to tracks. The chain is:
 so "decision -> detections" holds the buffer's letterbox or crops, the pair or crops hop and the
 detector; minus the detector's own time it is what that hop costs. The times are arrivals at the
 probe, so two messages sent almost together (detections, then tracks) can arrive in either order
-and a stage can come out slightly negative.
+and a stage can come out negative (by up to some 15 ms on GD frames, seen).
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import threading
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from gldt_ros import topics
+
 #: The probed topics in chain order; the camera comes first and is whichever one the bag has.
-CHAIN = ("gldt/frame_ticks", "gldt/track_predictions", "gldt/scheduler/state", "gldt/detections", "gldt/tracks")
-CAMERA_TOPICS = ("camera/image_raw", "camera/image_raw/compressed")
+CHAIN = (topics.FRAME_TICKS, topics.TRACK_PREDICTIONS, topics.SCHEDULER_STATE, topics.DETECTIONS, topics.TRACKS)
+CAMERA_TOPICS = (topics.IMAGE_RAW, topics.IMAGE_COMPRESSED)
+
+
+def complete_frames(arrivals: Mapping[int, Mapping[str, float]], chain: Sequence[str]) -> dict[int, Mapping[str, float]]:
+    """The frames (by stamp) whose messages reached every topic of ``chain``."""
+    return {stamp: times for stamp, times in arrivals.items() if all(topic in times for topic in chain)}
 
 
 def stage_medians(arrivals: Mapping[int, Mapping[str, float]], chain: Sequence[str]) -> list[tuple[str, str, float]]:
     """Median seconds from each topic of ``chain`` to the next, over the frames (stamps) that
     reached every topic of it; empty if none did."""
-    complete = [times for times in arrivals.values() if all(topic in times for topic in chain)]
+    complete = complete_frames(arrivals, chain).values()
     if not complete:
         return []
     return [
@@ -53,17 +59,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("pipeline_args", nargs="*", help="more `pipeline` arguments (after --)")
     args = parser.parse_args(argv)
 
-    import shutil
-
     import rclpy
     from gldt_msgs.msg import DetectionArray, FrameTick, SchedulerState, TrackArray, TrackPredictions
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CompressedImage, Image
 
-    pipeline = shutil.which("pipeline")
-    if pipeline is None:
-        raise SystemExit("bench_hops: `pipeline` not on PATH; run through scripts/with_ros_env.sh")
+    from gldt_ros.bench_graph import graph_run
+    from gldt_ros.convert import stamp_nanoseconds
+
     rclpy.init()
     probe = rclpy.create_node("gldt_hop_probe")
     arrivals: dict[int, dict[str, float]] = {}
@@ -74,7 +78,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def note(topic: str):
         def callback(message) -> None:
             now = time.monotonic()
-            stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
+            stamp = stamp_nanoseconds(message.header.stamp)
             with lock:
                 arrivals.setdefault(stamp, {}).setdefault(topic, now)
                 if isinstance(message, SchedulerState):
@@ -85,39 +89,33 @@ def main(argv: Sequence[str] | None = None) -> int:
         return callback
 
     reliable = QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
-    types = {"gldt/frame_ticks": FrameTick, "gldt/track_predictions": TrackPredictions,
-             "gldt/scheduler/state": SchedulerState, "gldt/detections": DetectionArray, "gldt/tracks": TrackArray,
-             "camera/image_raw": Image, "camera/image_raw/compressed": CompressedImage}
+    types = {topics.FRAME_TICKS: FrameTick, topics.TRACK_PREDICTIONS: TrackPredictions,
+             topics.SCHEDULER_STATE: SchedulerState, topics.DETECTIONS: DetectionArray, topics.TRACKS: TrackArray,
+             topics.IMAGE_RAW: Image, topics.IMAGE_COMPRESSED: CompressedImage}
     for topic in (*CAMERA_TOPICS, *CHAIN):
         probe.create_subscription(types[topic], topic, note(topic), reliable)
     executor = SingleThreadedExecutor()
     executor.add_node(probe)
     spinner = threading.Thread(target=executor.spin, daemon=True)
     spinner.start()
-    completed = subprocess.run(
-        [pipeline, "--bag", str(args.bag), "--lockstep", *args.pipeline_args], capture_output=True, text=True, check=False
-    )
-    summary = [line for line in completed.stdout.splitlines() if "replayed" in line]
-    if completed.returncode != 0 or not summary:
-        raise SystemExit(f"bench_hops: pipeline failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
+    summary = graph_run(args.bag, ["--lockstep", *args.pipeline_args])  # exits naming what failed
     with lock:
         camera = next((t for t in CAMERA_TOPICS if any(t in times for times in arrivals.values())), None)
         if camera is None:
             raise SystemExit("bench_hops: the probe received no camera frame")
-        print(f"bench_hops: {args.bag.name}; {summary[-1].removeprefix('pipeline: ')}")
+        print(f"bench_hops: {args.bag.name}; {summary.removeprefix('pipeline: ')}")
         chain = (camera, *CHAIN)
         for mode in ("GD", "LD"):
             frames = {stamp: times for stamp, times in arrivals.items() if modes.get(stamp) == mode}
-            stages = stage_medians(frames, chain)
-            if not stages:
+            complete = complete_frames(frames, chain)
+            if not complete:
                 continue
-            complete = [s for s, times in frames.items() if all(t in times for t in chain)]
             print(f"{mode} frames ({len(complete)}), median ms:")
-            for first, second, seconds in stages:
+            for first, second, seconds in stage_medians(complete, chain):
                 print(f"  {first:>28} -> {second:<24} {1000 * seconds:7.1f}")
             own = [detector_seconds[s] for s in complete if s in detector_seconds]
             print(f"  {'detector processing_time':>28}    {'':<24} {1000 * statistics.median(own):7.1f}")
-            total = statistics.median(frames[s][chain[-1]] - frames[s][chain[0]] for s in complete)
+            total = statistics.median(times[chain[-1]] - times[chain[0]] for times in complete.values())
             print(f"  {'camera -> tracks':>28}    {'':<24} {1000 * total:7.1f}")
     executor.shutdown()
     spinner.join(timeout=5.0)

@@ -97,9 +97,10 @@ def run_with_kill(
 def recorded_track_times(record: Path) -> list[tuple[int, float]]:
     """``(header stamp ns, wall-clock receive time s)`` of every recorded ``/gldt/tracks`` message."""
     from gldt_core.io.recording import iter_recorded
+    from gldt_ros.convert import stamp_nanoseconds
 
     return [
-        (message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec, log_ns / 1e9)
+        (stamp_nanoseconds(message.header.stamp), log_ns / 1e9)
         for _, message, log_ns in iter_recorded(record, "gldt/tracks")
     ]
 

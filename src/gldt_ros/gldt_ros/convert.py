@@ -21,6 +21,11 @@ def stamp_seconds(stamp: Any) -> float:
     return stamp.sec + stamp.nanosec * 1e-9
 
 
+def stamp_nanoseconds(stamp: Any) -> int:
+    """``builtin_interfaces/Time`` -> integer nanoseconds: an exact key for a frame's messages."""
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
+
+
 def image_to_bgr(message: Any) -> np.ndarray:
     """Decode ``sensor_msgs/Image`` or ``CompressedImage`` into a BGR array (``ImageDecodeError`` if not)."""
     if hasattr(message, "encoding"):

@@ -35,6 +35,7 @@ def newest_first(depth: int) -> QoSProfile:
     pair that waited behind three others would give the planner tracks 300 ms old)."""
     return QoSProfile(depth=depth, reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST)
 
+
 LATCHED_STATE = QoSProfile(
     depth=1,
     reliability=ReliabilityPolicy.RELIABLE,
