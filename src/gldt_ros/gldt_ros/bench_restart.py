@@ -34,6 +34,7 @@ from pathlib import Path
 from typing import Sequence
 
 from gldt_ros.pipeline import NODES
+from gldt_ros.shm_cleanup import segments_held_by
 
 #: The issue's goal: tracks again within this many seconds of the restart.
 GOAL_S = 2.0
@@ -47,6 +48,8 @@ class KilledRun:
     launched: float
     lines: list[tuple[float, str]] = field(default_factory=list)
     returncode: int | None = None
+    #: Shared-memory segments the victim held when it was killed (``shm_cleanup.segments_held_by``).
+    victim_segments: list[str] = field(default_factory=list)
 
     @property
     def text(self) -> str:
@@ -85,6 +88,7 @@ def run_with_kill(
             if not killed and "nodes up" in line:
                 time.sleep(kill_after_s)
                 pid = next(int(text.split("pid ")[1].rstrip(")\n")) for _, text in run.lines if f"started {victim}" in text)
+                run.victim_segments = segments_held_by(pid)
                 os.kill(pid, signal.SIGKILL)
                 killed = True
         run.returncode = process.wait(timeout=limit_s)

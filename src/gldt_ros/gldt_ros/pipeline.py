@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from gldt_ros.dds_profile import use_graph_dds_profile
+from gldt_ros.shm_cleanup import remove_dead_segments
 
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
 
@@ -235,6 +236,8 @@ class NodeProcesses:
                 self._last_restart = time.monotonic()
                 restarted.append(name)
             self.keep_spare()
+        if restarted:
+            report_removed_segments()
         return restarted
 
     def stop(self, grace_s: float = 10.0) -> int:
@@ -262,7 +265,16 @@ class NodeProcesses:
             if code not in (0, -signal.SIGINT, 130):
                 print(f"pipeline: node {name} exited with code {code}", flush=True)
                 unclean += 1
+        report_removed_segments()
         return unclean
+
+
+def report_removed_segments() -> None:
+    """Remove the shared-memory segments of dead DDS processes (:mod:`gldt_ros.shm_cleanup`: a
+    killed node cannot remove its own) and say how many, if any."""
+    removed = remove_dead_segments()
+    if removed:
+        print(f"pipeline: removed {len(removed)} shared-memory segment(s) left by dead processes", flush=True)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
