@@ -32,6 +32,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--nostff-model", default=None, help="no-STFF ablation ONNX (default: shipped)")
     parser.add_argument("--local-model", default=None, help="local ONNX (default: shipped)")
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: onnxruntime's)")
+    parser.add_argument(
+        "--long-side", type=int, default=None,
+        help="global models' input long side in px (default: each model card's; a multiple of 64), e.g. 1280 to ask whether small drones are missed for want of resolution",
+    )
     parser.add_argument("--latency-runs", type=int, default=30)
     parser.add_argument("--latency-threads", type=int, nargs="+", default=[1, 2], help="onnxruntime thread counts to time")
     parser.add_argument("--out", default="out/bench_detection", help="folder for the PNG curves and a JSON of all numbers")
@@ -43,8 +47,8 @@ def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, object]:
     from gldt_core.detect import GlobalDetector, LocalDetector, shipped_model_path
 
     return {
-        "AM-YOLO": GlobalDetector(args.global_model or shipped_model_path("global"), score_threshold=threshold, num_threads=args.threads),
-        "no-STFF": GlobalDetector(args.nostff_model or shipped_model_path("global_nostff"), score_threshold=threshold, num_threads=args.threads),
+        "AM-YOLO": GlobalDetector(args.global_model or shipped_model_path("global"), score_threshold=threshold, num_threads=args.threads, long_side=args.long_side),
+        "no-STFF": GlobalDetector(args.nostff_model or shipped_model_path("global_nostff"), score_threshold=threshold, num_threads=args.threads, long_side=args.long_side),
         "local": LocalDetector(args.local_model or shipped_model_path("local"), score_threshold=threshold, num_threads=args.threads),
     }
 
@@ -167,6 +171,8 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.frame_step < 1:
         raise ValueError(f"--frame-step must be >= 1, got {args.frame_step}")
+    if args.long_side is not None and args.update_cards:
+        raise ValueError("--update-cards records the models as they run by default; drop --long-side to use it")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     # Accuracy uses a low threshold so the PR curves span the whole range.
