@@ -42,8 +42,8 @@ def lock_is_held(lock_file: Path) -> bool:
                 return True
             fcntl.flock(handle, fcntl.LOCK_UN)
             return False
-    except FileNotFoundError:
-        return True  # removed meanwhile by its owner: nothing of ours to clean
+    except OSError:
+        return True  # removed meanwhile by its owner, or not ours to open: leave it
 
 
 def remove_dead_segments(directory: Path = SHM_DIRECTORY, min_age_s: float = MIN_AGE_S) -> list[str]:
@@ -92,8 +92,14 @@ def segments_held_by(pid: int, directory: Path = SHM_DIRECTORY) -> list[str]:
         # "1: FLOCK  ADVISORY  WRITE 1234 00:1a:5678 0 EOF"
         if len(fields) >= 6 and fields[1] == "FLOCK" and fields[4] == str(pid):
             inodes.add(int(fields[5].rsplit(":", 1)[1]))
+    if not inodes:
+        return []
+    try:
+        names = sorted(os.listdir(directory))
+    except OSError:
+        return []
     held: list[str] = []
-    for name in sorted(os.listdir(directory)) if inodes and directory.is_dir() else []:
+    for name in names:
         if SEGMENT_LOCK.match(name):
             try:
                 if (directory / name).stat().st_ino in inodes:
