@@ -1,6 +1,6 @@
 """ROS graph benchmark: throughput, camera-to-tracks latency and transport overhead.
 
-Usage: ``python -m gldt_ros.bench_graph [--bag BAG] [--rate 1.0]`` (with the workspace on the
+Usage: ``python -m gldt_ros.bench_graph [--bag BAG] [--rate 1.0] [--in-process]`` (with the workspace on the
 paths, e.g. ``scripts/with_ros_env.sh python -m gldt_ros.bench_graph``).
 
 Three runs on the same bag, in one invocation so the machine's load is shared alike:
@@ -67,14 +67,19 @@ def main(argv: list[str] | None = None) -> int:
     default_bag = REPO_ROOT / "bags" / "synth_1080p_multi_uav"
     parser.add_argument("--bag", type=Path, default=default_bag)
     parser.add_argument("--rate", type=float, default=1.0)
+    parser.add_argument(
+        "--in-process", action="store_true",
+        help="run the graph's nodes in one process (pipeline --in-process), to tell the cost of the process hops from rclpy's own",
+    )
     args = parser.parse_args(argv)
+    mode = ["--in-process"] if args.in_process else []
 
     offline_s, frames = offline_seconds_per_frame(args.bag)
-    lockstep = graph_run(args.bag, ["--lockstep"])
+    lockstep = graph_run(args.bag, ["--lockstep", *mode])
     lockstep_s = float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames
-    free = graph_run(args.bag, ["--rate", str(args.rate)])
+    free = graph_run(args.bag, ["--rate", str(args.rate), *mode])
     startup = startup_run(args.bag)
-    print(f"bench_graph: {args.bag.name}, {frames} frames")
+    print(f"bench_graph: {args.bag.name}, {frames} frames, nodes {'in one process' if args.in_process else 'one process each'}")
     print(f"  offline core pipeline : {1000 * offline_s:7.1f} ms/frame ({1 / offline_s:5.1f} fps)")
     print(f"  graph, lockstep       : {1000 * lockstep_s:7.1f} ms/frame ({1 / lockstep_s:5.1f} fps)")
     print(f"  ROS overhead          : {100 * (lockstep_s / offline_s - 1):+7.1f} % of the core's time per frame (goal <= 20 %)")
