@@ -78,6 +78,9 @@ class InProcessGraph:
 
     def close(self) -> None:
         self.executor.shutdown(timeout_sec=2.0)
+        # Destroying nodes while the spin thread still runs a callback leaves that callback's
+        # task failing with "cannot use Destroyable", reported at exit as never retrieved.
+        self.thread.join(timeout=5.0)
         for node in [*self.nodes, self.probe]:
             node.destroy_node()
         rclpy.shutdown()

@@ -163,6 +163,7 @@ def test_a_node_republishes_its_diagnostics_as_soon_as_a_peer_is_matched() -> No
             time.sleep(0.05)
         assert reports[-1][key] == 1, reports
         executor.shutdown(timeout_sec=2.0)
+        thread.join(timeout=5.0)  # no callback may still run on a node being destroyed
         scheduler.destroy_node()
         probe.destroy_node()
     finally:
