@@ -62,9 +62,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     import rclpy
     from gldt_msgs.msg import DetectionArray, FrameTick, SchedulerState, TrackArray, TrackPredictions
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import CompressedImage, Image
 
+    from gldt_ros import qos
     from gldt_ros.bench_graph import graph_run
     from gldt_ros.convert import stamp_nanoseconds
 
@@ -88,12 +88,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
         return callback
 
-    reliable = QoSProfile(depth=30, reliability=ReliabilityPolicy.RELIABLE)
     types = {topics.FRAME_TICKS: FrameTick, topics.TRACK_PREDICTIONS: TrackPredictions,
              topics.SCHEDULER_STATE: SchedulerState, topics.DETECTIONS: DetectionArray, topics.TRACKS: TrackArray,
              topics.IMAGE_RAW: Image, topics.IMAGE_COMPRESSED: CompressedImage}
     for topic in (*CAMERA_TOPICS, *CHAIN):
-        probe.create_subscription(types[topic], topic, note(topic), reliable)
+        probe.create_subscription(types[topic], topic, note(topic), qos.RELIABLE)
     executor = SingleThreadedExecutor()
     executor.add_node(probe)
     spinner = threading.Thread(target=executor.spin, daemon=True)
