@@ -46,19 +46,21 @@ def lock_is_held(lock_file: Path) -> bool:
         return True  # removed meanwhile by its owner, or not ours to open: leave it
 
 
+def segment_lock_files(directory: Path) -> list[Path]:
+    """The data segments' lock files in ``directory``, sorted (none if it cannot be read)."""
+    try:
+        names = sorted(os.listdir(directory))
+    except OSError:
+        return []
+    return [directory / name for name in names if SEGMENT_LOCK.match(name)]
+
+
 def remove_dead_segments(directory: Path = SHM_DIRECTORY, min_age_s: float = MIN_AGE_S) -> list[str]:
     """Remove the data segments (and their lock files) that no living process holds; return the
     segment names removed. Never raises: a file that vanishes or cannot be removed is skipped."""
-    try:
-        names = os.listdir(directory)
-    except OSError:
-        return []
     now = time.time()
     removed: list[str] = []
-    for name in names:
-        if not SEGMENT_LOCK.match(name):
-            continue
-        lock_file = directory / name
+    for lock_file in segment_lock_files(directory):
         try:
             if now - lock_file.stat().st_mtime < min_age_s:
                 continue
@@ -66,7 +68,7 @@ def remove_dead_segments(directory: Path = SHM_DIRECTORY, min_age_s: float = MIN
             continue
         if lock_is_held(lock_file):
             continue
-        segment = name[: -len("_el")]
+        segment = lock_file.name[: -len("_el")]
         for path in (directory / segment, lock_file):
             try:
                 path.unlink()
@@ -94,16 +96,11 @@ def segments_held_by(pid: int, directory: Path = SHM_DIRECTORY) -> list[str]:
             inodes.add(int(fields[5].rsplit(":", 1)[1]))
     if not inodes:
         return []
-    try:
-        names = sorted(os.listdir(directory))
-    except OSError:
-        return []
     held: list[str] = []
-    for name in names:
-        if SEGMENT_LOCK.match(name):
-            try:
-                if (directory / name).stat().st_ino in inodes:
-                    held.append(name[: -len("_el")])
-            except OSError:
-                continue
+    for lock_file in segment_lock_files(directory):
+        try:
+            if lock_file.stat().st_ino in inodes:
+                held.append(lock_file.name[: -len("_el")])
+        except OSError:
+            continue
     return held
