@@ -18,6 +18,8 @@ from gldt_ros import spare  # noqa: E402
         ('["no_such_node"]\n', "expected one of"),
         ('["mode_scheduler", 3]\n', "string arguments"),
         ("{}\n", "bad request"),
+        ('{"mode_scheduler": 1}\n', "expected a JSON list"),
+        ("[]\n", "bad request"),
     ],
 )
 def test_a_bad_request_is_refused_in_one_line(request_line: str, complaint: str, capsys: pytest.CaptureFixture[str]) -> None:

@@ -24,7 +24,10 @@ from gldt_ros.pipeline import NODES
 def become_node(request_line: str) -> int:
     """Run the node named in ``request_line`` (see the module docstring) until it stops."""
     try:
-        name, *arguments = json.loads(request_line)
+        request = json.loads(request_line)
+        if not isinstance(request, list):  # unpacking would take a JSON object's keys as the node
+            raise TypeError(f"expected a JSON list, got a JSON {type(request).__name__}")
+        name, *arguments = request
     except (ValueError, TypeError) as error:
         print(f"[gldt] spare: bad request {request_line.strip()!r}: {error}", flush=True)
         return 2
