@@ -207,7 +207,9 @@ def jcma_cost_rows(
 
     * ``hypot`` is numpy's, evaluated in one batched call (``math.hypot`` is a different, more
       accurate algorithm that differs from libm's in the last bit for ~0.5 % of inputs);
-      ``math.atan2`` is libm's ``atan2``, which is what ``np.arctan2`` calls on strided views.
+      ``math.atan2`` is libm's ``atan2``, which is what ``np.arctan2`` calls on strided views
+      on AVX2 machines. On AVX-512 ones numpy has its own SIMD ``hypot``/``arctan2`` kernels, and
+      the two paths can differ by a few ulp (~1e-16 in a cost; the tests allow 1e-14).
     * The cosine sum of eq. 15 is added sequentially over k. The vectorised path does it as one BLAS
       product, whose last bit depends on the kernel OpenBLAS picks (FMA, and for a single row or
       column even on the arrays' memory alignment), so that term agrees to ~1e-15, not bit for bit.
