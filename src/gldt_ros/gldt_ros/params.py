@@ -41,6 +41,10 @@ _CAMERA_QOS = ParamSpec(
 )
 _DETECTOR_DEFAULTS = DetectorSettings()
 _CLASSES_DEFAULT = ",".join(str(c) for c in _DETECTOR_DEFAULTS.classes) if _DETECTOR_DEFAULTS.classes else ""
+_SCORE_THRESHOLD = ParamSpec(
+    "score_threshold", _DETECTOR_DEFAULTS.score_threshold,
+    "Lowest detection score kept (default: the offline pipeline's); -1 = the detector's own default (0.25)", -1.0, 1.0,
+)
 _DIAG_PERIOD = ParamSpec("diagnostics_period", 1.0, "Seconds between /diagnostics messages", 0.1, 60.0)
 
 SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
@@ -52,7 +56,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     ),
     "global_detector": (
         ParamSpec("model_path", "", "AM-YOLO ONNX file; empty = the model shipped with gldt_core"),
-        ParamSpec("score_threshold", -1.0, "Lowest detection score kept; -1 = the detector's default", -1.0, 1.0),
+        _SCORE_THRESHOLD,
         ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids passed to the tracker (1 drone, 2 bird, 3 airplane); empty = all"),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers (CUDA, TensorRT on Jetson)"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
@@ -61,7 +65,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     ),
     "local_detector": (
         ParamSpec("model_path", "", "Local P2 ONNX file; empty = the model shipped with gldt_core"),
-        ParamSpec("score_threshold", -1.0, "Lowest detection score kept; -1 = the detector's default", -1.0, 1.0),
+        _SCORE_THRESHOLD,
         ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids passed to the tracker; empty = all"),
         ParamSpec("nms_iou", _DETECTOR_DEFAULTS.nms_iou, "IoU above which detections of overlapping ROIs are merged", 0.01, 1.0),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers"),
