@@ -11,7 +11,6 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import threading
 import time
 from pathlib import Path
 
@@ -25,6 +24,7 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels tha
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from gldt_ros.pipeline import NODES  # noqa: E402
+from gldt_ros.spin import start_spin_thread  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 PIPELINE = REPO / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
@@ -53,8 +53,7 @@ class InProcessGraph:
         self.executor = MultiThreadedExecutor(num_threads=4)
         for node in [*self.nodes, self.probe]:
             self.executor.add_node(node)
-        self.thread = threading.Thread(target=self.executor.spin, daemon=True)
-        self.thread.start()
+        self.thread = start_spin_thread(self.executor)
         deadline = time.monotonic() + 10
         while time.monotonic() < deadline and (self.raw.get_subscription_count() == 0 or self.compressed.get_subscription_count() == 0):
             time.sleep(0.05)

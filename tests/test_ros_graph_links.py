@@ -127,8 +127,6 @@ def test_own_link_counts_follow_dds_matching_and_leave_out_infrastructure_topics
 
 def test_a_node_republishes_its_diagnostics_as_soon_as_a_peer_is_matched() -> None:
     """With a 60 s diagnostics period, only the on-change report can tell of the new detector."""
-    import threading
-
     from diagnostic_msgs.msg import DiagnosticArray
     from gldt_msgs.msg import DetectionArray
     from rclpy.executors import MultiThreadedExecutor
@@ -136,6 +134,7 @@ def test_a_node_republishes_its_diagnostics_as_soon_as_a_peer_is_matched() -> No
 
     from gldt_ros import qos
     from gldt_ros.nodes import mode_scheduler
+    from gldt_ros.spin import start_spin_thread
 
     rclpy.init()
     try:
@@ -151,8 +150,7 @@ def test_a_node_republishes_its_diagnostics_as_soon_as_a_peer_is_matched() -> No
         executor = MultiThreadedExecutor(num_threads=2)
         executor.add_node(scheduler)
         executor.add_node(probe)
-        thread = threading.Thread(target=executor.spin, daemon=True)
-        thread.start()
+        thread = start_spin_thread(executor)
         key = MATCHED_PUBLISHERS + "/gldt/detections"
         deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline and not reports:

@@ -53,9 +53,24 @@ def stage_medians(arrivals: Mapping[int, Mapping[str, float]], chain: Sequence[s
     ]
 
 
+def slowest_frames(
+    arrivals: Mapping[int, Mapping[str, float]], chain: Sequence[str], count: int
+) -> list[tuple[int, float, list[float]]]:
+    """The ``count`` complete frames slowest from the first topic of ``chain`` to the last:
+    ``(stamp, total, [seconds per stage])``, slowest first. Medians hide stalls; a stall of a
+    lockstep frame holds up the whole replay, so these say which hop the replay waits on."""
+    complete = complete_frames(arrivals, chain)
+    ranked = sorted(complete.items(), key=lambda item: item[1][chain[-1]] - item[1][chain[0]], reverse=True)
+    return [
+        (stamp, times[chain[-1]] - times[chain[0]], [times[b] - times[a] for a, b in zip(chain, chain[1:])])
+        for stamp, times in ranked[:count]
+    ]
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="bench_hops", description=__doc__.split("\n\n")[0])
     parser.add_argument("--bag", type=Path, default=Path("bags/halmstad_v_drone_001"), help="bag to replay")
+    parser.add_argument("--worst", type=int, default=5, help="also list this many slowest frames stage by stage (0: none)")
     parser.add_argument("pipeline_args", nargs="*", help="more `pipeline` arguments (after --)")
     args = parser.parse_args(argv)
 
@@ -67,6 +82,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from gldt_ros import qos
     from gldt_ros.bench_graph import graph_run
     from gldt_ros.convert import stamp_nanoseconds
+    from gldt_ros.spin import start_spin_thread
 
     rclpy.init()
     probe = rclpy.create_node("gldt_hop_probe")
@@ -95,8 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         probe.create_subscription(types[topic], topic, note(topic), qos.RELIABLE)
     executor = SingleThreadedExecutor()
     executor.add_node(probe)
-    spinner = threading.Thread(target=executor.spin, daemon=True)
-    spinner.start()
+    spinner = start_spin_thread(executor)
     summary = graph_run(args.bag, ["--lockstep", *args.pipeline_args])  # exits naming what failed
     with lock:
         camera = next((t for t in CAMERA_TOPICS if any(t in times for times in arrivals.values())), None)
@@ -116,6 +131,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"  {'detector processing_time':>28}    {'':<24} {1000 * statistics.median(own):7.1f}")
             total = statistics.median(times[chain[-1]] - times[chain[0]] for times in complete.values())
             print(f"  {'camera -> tracks':>28}    {'':<24} {1000 * total:7.1f}")
+        if args.worst > 0:
+            names = " | ".join(topic.rsplit("/", 1)[-1] for topic in chain[1:])
+            print(f"slowest frames, ms from the previous topic to: {names}")
+            for stamp, total, stages in slowest_frames(arrivals, chain, args.worst):
+                steps = " | ".join(f"{1000 * seconds:.0f}" for seconds in stages)
+                print(f"  {modes.get(stamp, '?')} frame stamped {stamp}: {1000 * total:.0f} ms = {steps}")
     executor.shutdown()
     spinner.join(timeout=5.0)
     probe.destroy_node()

@@ -284,6 +284,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from rclpy.executors import MultiThreadedExecutor
 
     from gldt_ros.replay import GraphDriver
+    from gldt_ros.spin import spin_until_shutdown
 
     use_graph_dds_profile()
     rclpy.init(args=["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"] if args.namespace else None)
@@ -294,7 +295,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     executor = MultiThreadedExecutor(num_threads=4)
     driver = GraphDriver(args)
     executor.add_node(driver)
-    spin_thread = threading.Thread(target=executor.spin, daemon=True)
+    spin_thread = threading.Thread(target=spin_until_shutdown, args=(executor,), name="gldt-spin", daemon=True)
     status = 0
     started = time.monotonic()
     try:

@@ -506,6 +506,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     from gldt_ros.dds_profile import use_graph_dds_profile
     from gldt_ros.pipeline import NODES, NodeProcesses, _supervise_until
     from gldt_ros.pipeline import parse_args as pipeline_args
+    from gldt_ros.spin import spin_until_shutdown
 
     pipeline_argv = ["--bag", str(args.bag), "--max-restarts", str(args.max_restarts)] + (["--default-malloc"] if args.default_malloc else [])
     pargs = pipeline_args(pipeline_argv + (["--params", str(args.params)] if args.params else []))
@@ -521,7 +522,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     driver.create_subscription(TrackPredictions, topics.TRACK_PREDICTIONS, window.on_predictions, qos.RELIABLE)
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(driver)
-    spin = threading.Thread(target=executor.spin, daemon=True)
+    spin = threading.Thread(target=spin_until_shutdown, args=(executor,), daemon=True)
     stop = threading.Event()
     samples: list[Sample] = []
     startup: dict[str, Any] = {}
