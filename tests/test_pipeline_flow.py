@@ -315,6 +315,34 @@ def test_run_frames_collects_mot_rows_modes_and_decode_time():
     assert "decode" in result.stage_ms and pipeline.timer.calls["decode"] == 45
 
 
+def test_interleaved_runs_give_each_pipeline_what_a_run_of_its_own_gives():
+    """run_frames_interleaved takes turns frame by frame and changes no pipeline's results."""
+    from gldt_core.pipeline.runner import SimpleFrame, run_frames, run_frames_interleaved
+
+    scene = Scene([[300, 500], [1400, 700]], [[4, 1], [-3, 2]])
+
+    def frames():
+        return (SimpleFrame(k, k / FPS, stamp_frame(k)) for k in range(60))
+
+    def pipelines():
+        return [make_pipeline(scene, n_global=10, n_local=20)[0], make_pipeline(scene, n_global=5, local_enabled=False)[0]]
+
+    alone = [run_frames(pipeline, frames()) for pipeline in pipelines()]
+    turns: list[tuple[int, int]] = []
+    callbacks = [lambda frame, _tracks, i=i: turns.append((i, int(frame.index))) for i in range(2)]
+    interleaved_pipelines = pipelines()
+    together = run_frames_interleaved(interleaved_pipelines, frames(), on_frame=callbacks)
+    assert turns == [(i, k) for k in range(60) for i in range(2)]
+    for own, shared, pipeline in zip(alone, together, interleaved_pipelines):
+        np.testing.assert_array_equal(shared.rows, own.rows)
+        assert shared.modes.tolist() == own.modes.tolist() and shared.frames == own.frames == 60
+        # Each frame is decoded once, and that time is booked to every pipeline.
+        assert pipeline.timer.calls["decode"] == 60 and shared.seconds > 0
+    assert together[0].global_share == pytest.approx(20 / 60) and together[1].global_share == 1.0
+    with pytest.raises(ValueError, match="2 on_frame callbacks for 1 pipelines"):
+        run_frames_interleaved(pipelines()[:1], frames(), on_frame=callbacks)
+
+
 @pytest.mark.slow
 def test_resident_memory_is_flat_over_ten_thousand_frames():
     """Issue 7: RSS must not grow beyond 5 % over 10,000 frames (targets come and go)."""
@@ -440,6 +468,37 @@ def test_ablation_runs_four_variants_on_shared_detectors():
     assert len(gd.pairs) == 2 * frames + 2 * 20 and len(ld.calls) == 2 * 60
     table = format_table("doubles", rows)
     assert "GD+LD+JPTrack vs GD+JPTrack" in table and "speed x" in table
+
+
+def test_ablation_plays_each_sequence_once_for_all_four_variants():
+    """The variants take turns frame by frame on one playback of each sequence, so a drift of the
+    machine's speed during the run cannot favour the variants that happened to run first."""
+    from gldt_core.bench.ablation import VARIANTS, run_dataset
+    from gldt_core.pipeline.runner import SimpleFrame
+
+    scene = Scene([[400, 300]], [[2, 1]])
+    frames = 20
+    gt = np.array([[k + 1, 1, *scene.boxes(k)[0][:2], 20, 20, 1, 1, 1, -1] for k in range(frames)])
+    started: list[str] = []
+
+    class Sequence:
+        fps = FPS
+
+        def __init__(self, name: str) -> None:
+            self.name, self.gt = name, gt
+
+        def __len__(self) -> int:
+            return frames
+
+        def __iter__(self):
+            started.append(self.name)
+            return (SimpleFrame(k, k / FPS, stamp_frame(k)) for k in range(frames))
+
+    config = PipelineConfig(scheduler=SchedulerConfig(n_global=5, n_local=10))
+    rows = run_dataset([Sequence("first"), Sequence("second")], config, (GroundTruthGlobal(scene), GroundTruthLocal(scene)))
+    assert started == ["first", "second"]
+    assert [row["variant"] for row in rows] == [v[0] for v in VARIANTS]
+    assert all(row["frames"] == 2 * frames for row in rows)
 
 
 def test_only_configured_classes_reach_the_tracker():

@@ -6,10 +6,12 @@ IDF1, MOTA, MOTP, HOTA (TrackEval definitions, percent) and FPS, on
 * synthetic 1080p test scenes (``gldt_core.sim.presets``, test split), and
 * the Halmstad validation clips (``detect.halmstad_split``), skipped with a reason if absent.
 
-All four rows share the same detector instances and the same decoded frames, so their FPS are
-comparable; GD+JPTrack *is* "the global detector on every frame", so the speed ratio
-GD+LD+JPTrack / GD+JPTrack is the GL-DT schedule's gain, measured in the same run. Frames are
-kept JPEG-encoded in memory and decoded per use (``decode`` stage), like a video would be.
+All four rows share the same detector instances and the same decoded frames, and take turns frame
+by frame so that the machine's drift hits them alike: their FPS are comparable. GD+JPTrack
+*is* "the global detector on every frame", so the speed ratio GD+LD+JPTrack / GD+JPTrack is the
+GL-DT schedule's gain, measured in the same run. Frames are kept JPEG-encoded in memory and
+decoded as they are played, like a video would be; each frame's decode time (``decode`` stage) is
+booked to every row.
 """
 
 from __future__ import annotations
@@ -130,56 +132,83 @@ def halmstad_sequences(root: str, clips: int, clip_frames: int | None) -> list[C
 def run_dataset(
     sequences: list[CachedSequence], config: Any, detectors: tuple[Any, Any], progress: bool = False
 ) -> list[dict[str, Any]]:
-    """All four variants over ``sequences``; one dict per variant (metrics in %, FPS, breakdown)."""
+    """All four variants over ``sequences``; one dict per variant (metrics in %, FPS, breakdown).
+
+    The four variants take turns frame by frame (:func:`run_frames_interleaved`) rather than each
+    running the sequences in turn: this shared machine's speed drifts by up to a factor of two
+    from one minute to the next, and the speed ratio between variants is only fair when each saw
+    the same machine.
+    """
     import sys
 
     from gldt_core.eval.mot_metrics import evaluate_many
     from gldt_core.pipeline.pipeline import GLDTPipeline, build_tracker
-    from gldt_core.pipeline.runner import run_frames
-    from gldt_core.pipeline.timing import StageTimer
+    from gldt_core.pipeline.runner import run_frames_interleaved
 
     global_detector, local_detector = detectors
-    rows = []
-    for label, local_enabled, tracker_name in VARIANTS:
-        variant_config = config.with_changes(local_enabled=local_enabled, tracker=tracker_name)
-        timer = StageTimer()
-        frames = seconds = gd_frames = 0
-        coverage = [0, 0]  # drones inside an ROI, drones on LD frames
-        pairs = {}
-        for sequence in sequences:
+    runs = [_VariantRun(label, config.with_changes(local_enabled=on, tracker=name)) for label, on, name in VARIANTS]
+    for sequence in sequences:
+        drones_by_frame = _drone_centres_by_frame(sequence.gt)
+        pipelines, callbacks = [], []
+        for run in runs:
+            local_enabled = run.config.scheduler.local_enabled
             pipeline = GLDTPipeline(
-                variant_config,
+                run.config,
                 global_detector=global_detector,
                 local_detector=local_detector if local_enabled else None,
-                tracker=build_tracker(variant_config),
-                timer=timer,
+                tracker=build_tracker(run.config),
+                timer=run.timer,
             )
-            drones_by_frame = _drone_centres_by_frame(sequence.gt)
 
-            def count_coverage(frame: Any, _tracks: Any, pipeline: Any = pipeline, drones: Any = drones_by_frame) -> None:
+            def count_coverage(frame: Any, _tracks: Any, pipeline: Any = pipeline, run: _VariantRun = run) -> None:
                 plan = pipeline.last_plan
-                centres = drones.get(int(frame.index) + 1)
+                centres = drones_by_frame.get(int(frame.index) + 1)
                 if plan is None or plan.mode.value != "LD" or centres is None:
                     return
-                coverage[0] += int(_inside_any(centres, plan.rois).sum())
-                coverage[1] += len(centres)
+                run.coverage[0] += int(_inside_any(centres, plan.rois).sum())
+                run.coverage[1] += len(centres)
 
-            result = run_frames(pipeline, sequence, on_frame=count_coverage if local_enabled else None)
-            frames += result.frames
-            seconds += result.seconds
-            gd_frames += result.global_frames
-            pairs[sequence.name] = (sequence.gt, result.rows)
-        metrics = evaluate_many(pairs)["combined"]
-        row: dict[str, Any] = {"variant": label, "frames": frames, "fps": frames / seconds if seconds else 0.0}
-        row["gd_share"] = gd_frames / frames if frames else 0.0
-        row["roi_coverage"] = coverage[0] / coverage[1] if coverage[1] else None
+            pipelines.append(pipeline)
+            callbacks.append(count_coverage if local_enabled else None)
+        for run, result in zip(runs, run_frames_interleaved(pipelines, sequence, on_frame=callbacks)):
+            run.frames += result.frames
+            run.seconds += result.seconds
+            run.gd_frames += result.global_frames
+            run.pairs[sequence.name] = (sequence.gt, result.rows)
+        if progress:
+            speeds = ", ".join(f"{run.label} {run.fps:.1f}" for run in runs)
+            print(f"ablation: {sequence.name} done (FPS so far: {speeds})", file=sys.stderr, flush=True)
+    rows = []
+    for run in runs:
+        metrics = evaluate_many(run.pairs)["combined"]
+        row: dict[str, Any] = {"variant": run.label, "frames": run.frames, "fps": run.fps}
+        row["gd_share"] = run.gd_frames / run.frames if run.frames else 0.0
+        row["roi_coverage"] = run.coverage[0] / run.coverage[1] if run.coverage[1] else None
         for key in METRICS:
             row[key] = int(metrics[key]) if key == "IDSW" else 100.0 * float(metrics[key])
-        row["stage_ms"] = {name: ms for name, ms, _, _ in timer.breakdown(frames)}
+        row["stage_ms"] = {name: ms for name, ms, _, _ in run.timer.breakdown(run.frames)}
         rows.append(row)
-        if progress:
-            print(f"ablation: {label} done ({frames} frames, {row['fps']:.1f} FPS)", file=sys.stderr, flush=True)
     return rows
+
+
+class _VariantRun:
+    """What one ablation variant has accumulated so far over the sequences."""
+
+    def __init__(self, label: str, config: Any) -> None:
+        from gldt_core.pipeline.timing import StageTimer
+
+        self.label = label
+        self.config = config
+        self.timer = StageTimer()
+        self.frames = 0
+        self.seconds = 0.0
+        self.gd_frames = 0
+        self.coverage = [0, 0]  # drones inside an ROI, drones on LD frames
+        self.pairs: dict[str, Any] = {}  # sequence name -> (ground truth, track rows)
+
+    @property
+    def fps(self) -> float:
+        return self.frames / self.seconds if self.seconds else 0.0
 
 
 def _drone_centres_by_frame(gt: Any) -> dict[int, Any]:

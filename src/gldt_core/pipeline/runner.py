@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Iterator
+from typing import Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
@@ -78,6 +78,52 @@ def _timed(frames: Iterable[Any], pipeline: GLDTPipeline, limit: int | None) -> 
         yield frame
 
 
+class _Recorder:
+    """What one pipeline's run keeps per frame: track rows, the mode, ground truth if asked."""
+
+    def __init__(
+        self,
+        pipeline: GLDTPipeline,
+        on_frame: Callable[[Any, np.ndarray], None] | None,
+        collect_ground_truth: bool,
+    ) -> None:
+        self.pipeline = pipeline
+        self.on_frame = on_frame
+        self.collect_ground_truth = collect_ground_truth
+        self.rows: list[np.ndarray] = []
+        self.gt_rows: list[np.ndarray] = []
+        self.modes: list[bool] = []
+
+    def step(self, frame: Any) -> None:
+        tracks = self.pipeline.process(frame.image, frame.stamp)
+        self.rows.append(tracks_to_mot(tracks, int(frame.index) + 1))
+        self.modes.append(self.pipeline.state.mode is Mode.GLOBAL)
+        if self.collect_ground_truth:
+            gt = getattr(frame, "ground_truth", None)
+            if gt is not None and len(gt):
+                self.gt_rows.append(np.asarray(gt, dtype=np.float64).reshape(-1, 10))
+        if self.on_frame is not None:
+            self.on_frame(frame, tracks)
+
+    def result(self, seconds: float) -> RunResult:
+        count = len(self.modes)
+        table = np.vstack(self.rows) if self.rows else np.zeros((0, 10))
+        gt_table = None
+        if self.collect_ground_truth:
+            gt_table = np.vstack(self.gt_rows) if self.gt_rows else np.zeros((0, 10))
+        mode_array = np.asarray(self.modes, dtype=bool)
+        return RunResult(
+            rows=table,
+            frames=count,
+            seconds=seconds,
+            global_frames=int(mode_array.sum()),
+            modes=mode_array,
+            ground_truth=gt_table,
+            stage_ms={name: ms for name, ms, _, _ in self.pipeline.timer.breakdown(count)},
+            reinitialisations=self.pipeline.state.reinitialisations,
+        )
+
+
 def run_frames(
     pipeline: GLDTPipeline,
     frames: Iterable[Any],
@@ -89,33 +135,44 @@ def run_frames(
     """Process every frame of ``frames`` (objects with ``index``, ``stamp``, ``image`` and
     optionally ``ground_truth``); ``on_frame(frame, tracks)`` is called after each (overlay,
     progress bar). Output frame numbers are ``index + 1`` (MOTChallenge is 1-based)."""
-    rows: list[np.ndarray] = []
-    gt_rows: list[np.ndarray] = []
-    modes: list[bool] = []
+    recorder = _Recorder(pipeline, on_frame, collect_ground_truth)
     start = time.perf_counter()
-    count = 0
     for frame in _timed(frames, pipeline, max_frames):
-        tracks = pipeline.process(frame.image, frame.stamp)
-        rows.append(tracks_to_mot(tracks, int(frame.index) + 1))
-        modes.append(pipeline.state.mode is Mode.GLOBAL)
-        if collect_ground_truth:
-            gt = getattr(frame, "ground_truth", None)
-            if gt is not None and len(gt):
-                gt_rows.append(np.asarray(gt, dtype=np.float64).reshape(-1, 10))
-        if on_frame is not None:
-            on_frame(frame, tracks)
-        count += 1
-    seconds = time.perf_counter() - start
-    table = np.vstack(rows) if rows else np.zeros((0, 10))
-    gt_table = (np.vstack(gt_rows) if gt_rows else np.zeros((0, 10))) if collect_ground_truth else None
-    mode_array = np.asarray(modes, dtype=bool)
-    return RunResult(
-        rows=table,
-        frames=count,
-        seconds=seconds,
-        global_frames=int(mode_array.sum()),
-        modes=mode_array,
-        ground_truth=gt_table,
-        stage_ms={name: ms for name, ms, _, _ in pipeline.timer.breakdown(count)},
-        reinitialisations=pipeline.state.reinitialisations,
-    )
+        recorder.step(frame)
+    return recorder.result(time.perf_counter() - start)
+
+
+def run_frames_interleaved(
+    pipelines: Sequence[GLDTPipeline],
+    frames: Iterable[Any],
+    *,
+    on_frame: Sequence[Callable[[Any, np.ndarray], None] | None] | None = None,
+) -> list[RunResult]:
+    """:func:`run_frames` for several pipelines at once, taking turns frame by frame.
+
+    For comparing their speed on a shared machine, whose CPU speed drifts by a factor of two
+    within seconds: pipelines run one after the other see different machines, pipelines that take
+    turns on every frame see the same one. Each frame is decoded once; its decode time is booked
+    to every pipeline (each would have had to decode it), and each pipeline's ``seconds`` is that
+    plus its own processing. Every pipeline gets exactly the frames and results it would get from
+    :func:`run_frames`, as long as the pipelines share no mutable state.
+    """
+    callbacks = list(on_frame) if on_frame is not None else [None] * len(pipelines)
+    if len(callbacks) != len(pipelines):
+        raise ValueError(f"run_frames_interleaved: {len(callbacks)} on_frame callbacks for {len(pipelines)} pipelines")
+    recorders = [_Recorder(pipeline, callback, False) for pipeline, callback in zip(pipelines, callbacks)]
+    seconds = [0.0] * len(recorders)
+    iterator = iter(frames)
+    while True:
+        start = time.perf_counter()
+        try:
+            frame = next(iterator)
+        except StopIteration:
+            break
+        decode = time.perf_counter() - start
+        for index, recorder in enumerate(recorders):
+            recorder.pipeline.timer.add("decode", decode)
+            start = time.perf_counter()
+            recorder.step(frame)
+            seconds[index] += decode + time.perf_counter() - start
+    return [recorder.result(spent) for recorder, spent in zip(recorders, seconds)]
