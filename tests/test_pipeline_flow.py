@@ -462,12 +462,16 @@ def test_ablation_runs_four_variants_on_shared_detectors():
     # after confirmation, so MOTA stays a little under 100).
     for row in rows:
         assert row["IDSW"] == 0 and row["MOTA"] > 90.0 and row["frames"] == frames
+    # 10 GD frames of search, then LD until N_l = 30 sends it back once (frames 41-50 are GD).
+    assert by_name["GD+LD+JPTrack"]["search_gd_frames"] == 10
+    assert by_name["GD+LD+JPTrack"]["back_to_gd"] == {"LD ran 30 frames": 1}
     # The ROIs follow both targets on every LD frame; GD-only rows have no coverage figure.
     assert by_name["GD+LD+JPTrack"]["roi_coverage"] == 1.0 and by_name["GD+JPTrack"]["roi_coverage"] is None
     # GD frames: 4 variants; LD frames only for the two GD+LD variants.
     assert len(gd.pairs) == 2 * frames + 2 * 20 and len(ld.calls) == 2 * 60
     table = format_table("doubles", rows)
     assert "GD+LD+JPTrack vs GD+JPTrack" in table and "speed x" in table
+    assert "20, of which 10 before a sequence's first LD frame; back from LD to GD: 1x LD ran 30 frames" in table
 
 
 def test_ablation_plays_each_sequence_once_for_all_four_variants():

@@ -160,16 +160,21 @@ def run_dataset(
                 timer=run.timer,
             )
 
-            def count_coverage(frame: Any, _tracks: Any, pipeline: Any = pipeline, run: _VariantRun = run) -> None:
+            run.start_sequence()
+
+            def watch_schedule(frame: Any, _tracks: Any, pipeline: Any = pipeline, run: _VariantRun = run) -> None:
                 plan = pipeline.last_plan
+                if plan is None:
+                    return
+                run.note_mode(plan.mode.value, plan.reason)
                 centres = drones_by_frame.get(int(frame.index) + 1)
-                if plan is None or plan.mode.value != "LD" or centres is None:
+                if plan.mode.value != "LD" or centres is None:
                     return
                 run.coverage[0] += int(_inside_any(centres, plan.rois).sum())
                 run.coverage[1] += len(centres)
 
             pipelines.append(pipeline)
-            callbacks.append(count_coverage if local_enabled else None)
+            callbacks.append(watch_schedule if local_enabled else None)
         for run, result in zip(runs, run_frames_interleaved(pipelines, sequence, on_frame=callbacks)):
             run.frames += result.frames
             run.seconds += result.seconds
@@ -184,6 +189,8 @@ def run_dataset(
         row: dict[str, Any] = {"variant": run.label, "frames": run.frames, "fps": run.fps}
         row["gd_share"] = run.gd_frames / run.frames if run.frames else 0.0
         row["roi_coverage"] = run.coverage[0] / run.coverage[1] if run.coverage[1] else None
+        row["search_gd_frames"] = run.search_gd_frames
+        row["back_to_gd"] = dict(run.back_to_gd)
         for key in METRICS:
             row[key] = int(metrics[key]) if key == "IDSW" else 100.0 * float(metrics[key])
         row["stage_ms"] = {name: ms for name, ms, _, _ in run.timer.breakdown(run.frames)}
@@ -205,6 +212,24 @@ class _VariantRun:
         self.gd_frames = 0
         self.coverage = [0, 0]  # drones inside an ROI, drones on LD frames
         self.pairs: dict[str, Any] = {}  # sequence name -> (ground truth, track rows)
+        # GD frames of each sequence before its first LD frame (the initial search), and the
+        # switches from LD back to GD by the scheduler's reason: why GD keeps its share of frames.
+        self.search_gd_frames = 0
+        self.back_to_gd: dict[str, int] = {}
+        self._last_mode: str | None = None
+        self._searching = True
+
+    def start_sequence(self) -> None:
+        self._last_mode = None
+        self._searching = True
+
+    def note_mode(self, mode: str, reason: str) -> None:
+        """Record one frame's mode (``"GD"``/``"LD"``) and the scheduler's reason for it."""
+        self._searching = self._searching and mode == "GD"
+        self.search_gd_frames += int(self._searching)
+        if self._last_mode == "LD" and mode == "GD":
+            self.back_to_gd[reason] = self.back_to_gd.get(reason, 0) + 1
+        self._last_mode = mode
 
     @property
     def fps(self) -> float:
@@ -249,6 +274,12 @@ def format_table(title: str, rows: list[dict[str, Any]]) -> str:
     lines.append(
         f"GD+LD+JPTrack vs GD+JPTrack: MOTA {ours['MOTA'] - gd_only['MOTA']:+.2f}, "
         f"speed x{ratio:.2f} (GL-DT schedule vs global detector on every frame, same run)"
+    )
+    gd_frames = round(ours["gd_share"] * ours["frames"])
+    lines.append(
+        f"GD+LD+JPTrack GD frames: {gd_frames}, of which {ours.get('search_gd_frames', 0)} before a sequence's "
+        f"first LD frame; back from LD to GD: "
+        + (", ".join(f"{count}x {reason}" for reason, count in sorted(ours.get("back_to_gd", {}).items())) or "never")
     )
     stages = ", ".join(f"{k} {v:.1f}" for k, v in ours["stage_ms"].items())
     lines.append(f"GD+LD+JPTrack time per frame (ms): {stages}")
