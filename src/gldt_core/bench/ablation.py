@@ -187,6 +187,7 @@ def run_dataset(
     for run in runs:
         metrics = evaluate_many(run.pairs)["combined"]
         row: dict[str, Any] = {"variant": run.label, "frames": run.frames, "fps": run.fps}
+        row["gd_frames"] = run.gd_frames
         row["gd_share"] = run.gd_frames / run.frames if run.frames else 0.0
         row["roi_coverage"] = run.coverage[0] / run.coverage[1] if run.coverage[1] else None
         row["search_gd_frames"] = run.search_gd_frames
@@ -275,11 +276,10 @@ def format_table(title: str, rows: list[dict[str, Any]]) -> str:
         f"GD+LD+JPTrack vs GD+JPTrack: MOTA {ours['MOTA'] - gd_only['MOTA']:+.2f}, "
         f"speed x{ratio:.2f} (GL-DT schedule vs global detector on every frame, same run)"
     )
-    gd_frames = round(ours["gd_share"] * ours["frames"])
     lines.append(
-        f"GD+LD+JPTrack GD frames: {gd_frames}, of which {ours.get('search_gd_frames', 0)} before a sequence's "
+        f"GD+LD+JPTrack GD frames: {ours['gd_frames']}, of which {ours['search_gd_frames']} before a sequence's "
         f"first LD frame; back from LD to GD: "
-        + (", ".join(f"{count}x {reason}" for reason, count in sorted(ours.get("back_to_gd", {}).items())) or "never")
+        + (", ".join(f"{count}x {reason}" for reason, count in sorted(ours["back_to_gd"].items())) or "never")
     )
     stages = ", ".join(f"{k} {v:.1f}" for k, v in ours["stage_ms"].items())
     lines.append(f"GD+LD+JPTrack time per frame (ms): {stages}")
