@@ -35,7 +35,9 @@ def test_install_tree_has_executable(name: str) -> None:
 
 def test_install_tree_has_share_files() -> None:
     share = INSTALL / "share" / "gldt_ros"
-    for relative in ("package.xml", "config/gldt.yaml", "config/fastdds_profile.xml", "launch/gldt.launch.py"):
+    for relative in (
+        "package.xml", "config/gldt.yaml", "config/fastdds_profile.xml", "config/fastdds_profile_frames.xml", "launch/gldt.launch.py",
+    ):
         assert (share / relative).is_file(), f"share/gldt_ros/{relative} missing"
     assert (REPO / "install" / "gldt_ros" / "share" / "ament_index" / "resource_index" / "packages" / "gldt_ros").is_file()
 
@@ -63,14 +65,15 @@ def test_pipeline_points_fast_dds_at_the_shipped_profile_unless_the_user_chose_o
 PARTICIPANT_PROBE = "import rclpy; rclpy.init(); rclpy.create_node('profile_probe').destroy_node(); rclpy.shutdown(); print('up')"
 
 
-def test_fast_dds_loads_the_shipped_profile_without_a_parser_error(tmp_path: Path) -> None:
+@pytest.mark.parametrize("profile_name", ["fastdds_profile.xml", "fastdds_profile_frames.xml"])
+def test_fast_dds_loads_the_shipped_profile_without_a_parser_error(tmp_path: Path, profile_name: str) -> None:
     """Fast DDS falls back to its defaults on a profile it cannot parse, logging an error and
-    nothing else: a typo would silently undo every setting above. A participant started with the
+    nothing else: a typo would silently undo every setting above. A participant started with a
     shipped profile must log no XMLPARSER error; the same profile with one element misspelt must,
     which shows the probe can fail."""
     import sys
 
-    shipped = INSTALL / "share" / "gldt_ros" / "config" / "fastdds_profile.xml"
+    shipped = INSTALL / "share" / "gldt_ros" / "config" / profile_name
     misspelt = tmp_path / "misspelt.xml"
     misspelt.write_text(shipped.read_text().replace("healthy_check_timeout_ms>", "healthy_check_timeout>"))
     outputs = {}

@@ -22,6 +22,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from gldt_ros import qos, topics
+from gldt_ros.dds_profile import use_frames_profile_if_shipped
 from gldt_ros.graph_links import link_key_values, own_link_counts
 from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
@@ -134,14 +135,18 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     return descriptor
 
 
-def run_node(node_factory: Callable[[], Node], args: list[str] | None = None) -> int:
+def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, publishes_frames: bool = False) -> int:
     """Standard ``main``: init, spin until Ctrl-C or shutdown, clean up; returns an exit code.
 
-    A node that cannot start (missing model, bad parameter) logs one line and exits with 1.
+    A node that cannot start (missing model, bad parameter) logs one line and exits with 1. A
+    node that ``publishes_frames`` (images, pairs, crops: messages of a MiB or more) swaps the
+    graph's shipped DDS profile for its large-segment twin (:mod:`gldt_ros.dds_profile`).
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
+    if publishes_frames:
+        use_frames_profile_if_shipped()
     rclpy.init(args=args)
     node = None
     try:

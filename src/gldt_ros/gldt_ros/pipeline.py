@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Callable, Sequence
 
-from gldt_ros.dds_profile import use_graph_dds_profile
+from gldt_ros.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.shm_cleanup import remove_dead_segments
 
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
@@ -53,8 +53,9 @@ NODE_MALLOC_SETTINGS = {"MALLOC_MMAP_THRESHOLD_": "524288", "MALLOC_ARENA_MAX": 
 
 def node_environment(tune_malloc: bool) -> dict[str, str]:
     """The environment node processes start with: this one's, plus :data:`NODE_MALLOC_SETTINGS`
-    where ``tune_malloc`` and the user has not set them."""
-    env = dict(os.environ)
+    where ``tune_malloc`` and the user has not set them, and the shipped small-segment DDS profile
+    where this process switched to its frames twin (each node picks its own)."""
+    env = profile_for_children(dict(os.environ))
     if tune_malloc:
         for key, value in NODE_MALLOC_SETTINGS.items():
             env.setdefault(key, value)
@@ -287,6 +288,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from gldt_ros.spin import spin_until_shutdown
 
     use_graph_dds_profile()
+    use_frames_profile_if_shipped()  # this process plays the camera (and hosts the buffer --in-process)
     rclpy.init(args=["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"] if args.namespace else None)
     stop_requested = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())

@@ -1,7 +1,8 @@
 """Remove the shared-memory segments that killed Fast DDS processes leave in ``/dev/shm``.
 
 Every Fast DDS participant with the shared-memory transport creates a data segment
-(``fastrtps_<16 hex>``, about 0.5 MB here) and a lock file beside it (``..._el``) that it holds
+(``fastrtps_<16 hex>``, about 0.5 MB here, 8 MiB for the processes on
+``fastdds_profile_frames.xml``) and a lock file beside it (``..._el``) that it holds
 with ``flock`` for as long as it lives. A process that exits cleanly removes both; one killed by
 SIGKILL (or the OOM killer) cannot, so every crash of a node leaks its segment until the machine
 reboots. ``pipeline`` restarts dead nodes, so on a robot that runs for weeks the leak is the

@@ -503,7 +503,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
 
     from gldt_ros import qos, topics
     from gldt_ros.bag_io import IMAGE_TYPES_SET, iter_bag
-    from gldt_ros.dds_profile import use_graph_dds_profile
+    from gldt_ros.dds_profile import use_frames_profile_if_shipped, use_graph_dds_profile
     from gldt_ros.pipeline import NODES, NodeProcesses, _supervise_until
     from gldt_ros.pipeline import parse_args as pipeline_args
     from gldt_ros.spin import spin_until_shutdown
@@ -515,6 +515,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
         raise SystemExit(f"soak_graph: no image frames in {args.bag}")
 
     use_graph_dds_profile()
+    use_frames_profile_if_shipped()  # this process plays the camera
     rclpy.init()
     driver = SoakDriver(pargs)
     window = TrackWindow()

@@ -25,7 +25,8 @@ def generate_launch_description() -> LaunchDescription:
             DeclareLaunchArgument("params", default_value=default_params, description="parameter YAML"),
             DeclareLaunchArgument("namespace", default_value="", description="namespace (one per camera)"),
             # Fast discovery, as in ``pipeline`` (config/fastdds_profile.xml says why); a profile
-            # the user already exported wins.
+            # the user already exported wins. frame_pair_buffer swaps it for its large-segment
+            # twin itself (gldt_ros.dds_profile).
             SetEnvironmentVariable(
                 "FASTRTPS_DEFAULT_PROFILES_FILE",
                 EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", default_value=str(config / "fastdds_profile.xml")),

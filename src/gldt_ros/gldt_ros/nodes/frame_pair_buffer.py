@@ -158,7 +158,7 @@ def create_node(cli_args: list[str] | None = None) -> FramePairBuffer:
 
 
 def main() -> int:
-    return run_node(create_node)
+    return run_node(create_node, publishes_frames=True)
 
 
 if __name__ == "__main__":
