@@ -11,6 +11,12 @@ and in JPTrack's third, PMR stage, so both run this loop:
    are dropped (ByteTrack's "unconfirmed" step);
 5. remaining high-score detections with ``score >= new_track_thresh`` start tentative tracks,
    low-score ones are dropped; lost tracks older than their memory are removed.
+6. (optional, ``low_score_birth_frames`` = K > 0) a remaining low-score detection that has
+   reappeared at the same place in each of the last K frames starts a *confirmed* track: K
+   consistent sightings confirm it as the one-hit tentative step would, but without ever needing
+   a high score. With an under-confident detector, a drone it sees steadily at 0.15-0.25 would
+   otherwise never get a track (see :mod:`.birth`). Off by default: with the shipped detectors,
+   birds come back at the same place as steadily as drones do (README, "Low-score birth").
 
 Time is the caller's timestamp in seconds; nothing counts frames except ``frames_since_update``.
 """
@@ -22,6 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from gldt_core.track.assignment import linear_sum_assignment
+from gldt_core.track.birth import LowScoreBirth
 from gldt_core.track.geometry import (
     SCALAR_IOU_PAIRS,
     iou_pairs_above,
@@ -71,6 +78,7 @@ class MultiStageTracker:
         ref_fps: float,
         history_len: int,
         image_size: tuple[int, int],
+        low_score_birth_frames: int = 0,
     ) -> None:
         if not 0.0 <= t_low <= t_high <= 1.0:
             raise ValueError(f"need 0 <= t_l <= t_h <= 1, got t_l={t_low}, t_h={t_high}")
@@ -84,6 +92,9 @@ class MultiStageTracker:
         self._ref_fps = ref_fps
         self._history_len = history_len
         self._image_size = (float(image_size[0]), float(image_size[1]))
+        if low_score_birth_frames < 0:
+            raise ValueError(f"low_score_birth_frames must be >= 0 (0: off), got {low_score_birth_frames}")
+        self._low_birth = LowScoreBirth(low_score_birth_frames) if low_score_birth_frames > 0 else None
         self.reset()
 
     # --- public API -------------------------------------------------------------------------
@@ -93,6 +104,8 @@ class MultiStageTracker:
         self._next_id = 1
         self._last_t: float | None = None
         self._updates = 0
+        if self._low_birth is not None:
+            self._low_birth.reset()
 
     @property
     def tracks(self) -> list[Track]:
@@ -188,6 +201,15 @@ class MultiStageTracker:
             if dets[d, 4] >= self._new_thresh:
                 state = TrackState.CONFIRMED if first_frame else TrackState.TENTATIVE
                 self._tracks.append(Track(self._next_id, dets[d, :4], dets[d, 4], t, state,
+                                          self._ref_fps, self._history_len, rel[d]))
+                updated.add(id(self._tracks[-1]))
+                self._next_id += 1
+
+        # Confirmed tracks from low-score detections seen at the same place K frames running.
+        if self._low_birth is not None:
+            unclaimed = np.concatenate([rest_low, [d for d in rest_high if dets[d, 4] < self._new_thresh]]).astype(np.int64)
+            for d in self._low_birth.update(dets, unclaimed):
+                self._tracks.append(Track(self._next_id, dets[d, :4], dets[d, 4], t, TrackState.CONFIRMED,
                                           self._ref_fps, self._history_len, rel[d]))
                 updated.add(id(self._tracks[-1]))
                 self._next_id += 1

@@ -34,6 +34,9 @@ class ByteTrackConfig:
     ref_fps: float = 30.0
     history_len: int = 30
     image_size: tuple[int, int] = (1920, 1080)
+    # Start a confirmed track from a low-score detection seen at the same place this many frames
+    # running (0: off, the paper's behaviour; see gldt_core.track.birth).
+    low_score_birth_frames: int = 0
 
 
 class ByteTrack(MultiStageTracker):
@@ -44,7 +47,8 @@ class ByteTrack(MultiStageTracker):
         c = self.config
         super().__init__(t_high=c.track_thresh, t_low=c.low_thresh, new_track_thresh=c.new_track_thresh,
                          jcma_window_s=c.track_buffer_s, memory_s=c.track_buffer_s, ref_fps=c.ref_fps,
-                         history_len=c.history_len, image_size=c.image_size)
+                         history_len=c.history_len, image_size=c.image_size,
+                         low_score_birth_frames=c.low_score_birth_frames)
 
     def _pair_cost(
         self, stage: str, tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, t: float

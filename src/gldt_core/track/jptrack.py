@@ -77,6 +77,9 @@ class JPTrackConfig:
     iou_match_thresh: float = 0.8
     iou_second_thresh: float = 0.5
     iou_unconfirmed_thresh: float = 0.7
+    # Start a confirmed track from a low-score detection seen at the same place this many frames
+    # running (0: off, the paper's behaviour; see gldt_core.track.birth).
+    low_score_birth_frames: int = 0
 
     def weights(self) -> JcmaWeights:
         return JcmaWeights(w_iou=self.w1, w_dist=self.w2, w_motion=self.w3, w_rel=self.w4,
@@ -97,7 +100,8 @@ class JPTrack(MultiStageTracker):
         memory = c.lost_window_s + (c.pmr_memory_s if c.use_pmr else 0.0)
         super().__init__(t_high=c.t_h, t_low=c.t_l, new_track_thresh=c.new_track_thresh,
                          jcma_window_s=c.lost_window_s, memory_s=memory, ref_fps=c.ref_fps,
-                         history_len=c.history_len, image_size=c.image_size)
+                         history_len=c.history_len, image_size=c.image_size,
+                         low_score_birth_frames=c.low_score_birth_frames)
         #: Number of PMR mixtures fitted since construction (the bench reports it).
         self.pmr_fits = 0
         if c.pmr_backend not in ("numpy", "sklearn"):
