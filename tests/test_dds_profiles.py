@@ -51,7 +51,7 @@ def test_frames_profile_carries_the_largest_frame_pair_in_one_message() -> None:
     largest = _shm_setting(shipped_frames_profile(), "maxMessageSize")
     assert segment is not None and largest is not None
     assert largest >= LARGEST_PAIR_BYTES + 4096, "a 640x512 pair (and its header) must not be fragmented"
-    assert segment >= 2 * largest, "the writer keeps two pairs (PAIRS_KEPT); both must fit in the segment at once"
+    assert segment >= 2 * largest, "room for two pairs in flight at once (the writer keeps PAIRS_KEPT = 2 for resending)"
 
 
 def test_only_the_shipped_profile_is_swapped_for_its_frames_twin(monkeypatch) -> None:

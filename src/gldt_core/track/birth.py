@@ -5,7 +5,8 @@ low-score boxes may only extend tracks that exist. That assumes a detector confi
 targets. The small detectors shipped here are not: on one held-out Halmstad clip (V_DRONE_011)
 AM-YOLO found the drone in 57 of its first 60 frames at 0.13-0.24, once at 0.25, and the tracker
 started no track for 117 frames, so the GL-DT schedule searched with the global detector all that
-time. A false box rarely comes back at the same place frame after frame; a small target does.
+time. Clutter rarely comes back at the same place frame after frame; a small target does (and,
+as it turned out, so does a bird).
 
 :class:`LowScoreBirth` keeps *candidates*: chains of unclaimed low-score detections, one per
 frame, each within a distance gate of the one before. A chain that reaches ``frames`` links
@@ -68,10 +69,8 @@ class LowScoreBirth:
         used = set()
         if self.candidates and rows:
             previous = np.array([c.box for c in self.candidates])
-            distance = np.hypot(
-                _centre(previous)[:, None, 0] - _centre(boxes)[None, :, 0],
-                _centre(previous)[:, None, 1] - _centre(boxes)[None, :, 1],
-            )
+            offset = _centre(previous)[:, None, :] - _centre(boxes)[None, :, :]
+            distance = np.hypot(offset[..., 0], offset[..., 1])
             gate = GATE_DIAGONALS * np.hypot(previous[:, 2] - previous[:, 0], previous[:, 3] - previous[:, 1]) + GATE_MIN_PX
             for chain_index, column in assign(distance, distance <= gate[:, None]):
                 used.add(column)

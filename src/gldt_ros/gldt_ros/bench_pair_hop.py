@@ -63,6 +63,7 @@ def run_sender(rounds: int) -> int:
     import numpy as np
     import rclpy
     from gldt_msgs.msg import FramePair, FrameTick
+    from rclpy.executors import SingleThreadedExecutor
     from std_msgs.msg import Header
 
     from gldt_ros.convert import bgr_to_image
@@ -73,8 +74,6 @@ def run_sender(rounds: int) -> int:
     pairs = node.create_publisher(FramePair, PAIR_TOPIC, _qos())
     answered = threading.Event()
     node.create_subscription(FrameTick, ECHO_TOPIC, lambda _: answered.set(), _qos())
-    from rclpy.executors import SingleThreadedExecutor
-
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     thread = start_spin_thread(executor)
