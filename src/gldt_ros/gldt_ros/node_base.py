@@ -26,7 +26,6 @@ from gldt_ros.dds_profile import use_frames_profile_if_shipped
 from gldt_ros.graph_links import link_key_values, own_link_counts
 from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
-from gldt_ros.spin import spin_until_shutdown
 
 
 #: How often a node checks whether its matched peers changed (a cheap count per topic).
@@ -144,7 +143,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     graph's shipped DDS profile for its large-segment twin (:mod:`gldt_ros.dds_profile`).
     """
     import rclpy
-    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.executors import ExternalShutdownException
 
     if publishes_frames:
         use_frames_profile_if_shipped()
@@ -153,18 +152,19 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     try:
         node = node_factory()
         print(f"[gldt] {node.get_name()} ready", flush=True)
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        # Ctrl-C shuts the context down under the spin loop (maybe inside take_message, which
-        # then fails on the half-taken message): a stop, not a crash (gldt_ros.spin).
-        spin_until_shutdown(executor)
-    except KeyboardInterrupt:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, FileNotFoundError) as error:
         if node is not None:
             raise  # callbacks are guarded; anything else escaping spin is a bug worth a traceback
         print(f"[gldt] cannot start: {error}", flush=True)
         return 1
+    except RuntimeError:
+        # SIGINT shuts the context down while the executor may be inside take_message, which
+        # then fails to convert the half-taken message; that is a stop, not a crash.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

@@ -69,6 +69,9 @@ class GraphDriver(Node):
         self.latencies_s: list[float] = []
         self._answered_cv = threading.Condition()
         self.tracks_received = 0
+        # Newest header stamp received per recorded topic: a lockstep replay closes the recording
+        # only once every topic has caught up with the last frame (see wait_until_recorded).
+        self._newest_recorded: dict[str, int] = {}
         self.recorder = McapRecorder(args.record) if args.record else None
         for topic, msgtype in RECORDED_TOPICS.items():
             self.create_subscription(
@@ -154,6 +157,10 @@ class GraphDriver(Node):
             now = self.get_clock().now().nanoseconds
             if self.recorder is not None:
                 self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
+                with self._answered_cv:
+                    stamp = header_stamp_ns(raw)
+                    self._newest_recorded[topic] = max(stamp, self._newest_recorded.get(topic, stamp))
+                    self._answered_cv.notify_all()
             if topic == topics.TRACKS:
                 received = time.monotonic()
                 with self._answered_cv:
@@ -254,6 +261,7 @@ class GraphDriver(Node):
         waited_out = 0
         start_wall = time.monotonic()
         first_log_ns: int | None = None
+        last_stamp: int | None = None
         try:
             for message in iter_bag(self.args.bag):
                 if stop.is_set():
@@ -275,7 +283,8 @@ class GraphDriver(Node):
                     relinked = self._relink_after_restarts(stop, dead) if self.args.lockstep else None
                     if relinked is not None:
                         print(f"pipeline: {relinked}; next frame stamped {header_stamp_ns(message.data)}", flush=True)
-                    self.note_published(header_stamp_ns(message.data))
+                    last_stamp = header_stamp_ns(message.data)
+                    self.note_published(last_stamp)
                 publisher.publish(message.data)
                 if message.msgtype in IMAGE_TYPES_SET:
                     frames += 1
@@ -285,6 +294,8 @@ class GraphDriver(Node):
             self.get_logger().error(str(error))
         if not self.args.lockstep:
             self.drain(frames, stop)
+        elif last_stamp is not None:
+            self.wait_until_recorded(last_stamp, stop)
         elapsed = time.monotonic() - start_wall
         self.frames_published = frames
         latency = ""
@@ -310,6 +321,25 @@ class GraphDriver(Node):
                     return False
                 self._answered_cv.wait(0.05)
             self._answered.discard(stamp_ns)
+        return True
+
+    def wait_until_recorded(self, stamp_ns: int, stop: threading.Event, timeout_s: float = 2.0) -> bool:
+        """Wait until every recorded topic has delivered a message stamped ``stamp_ns`` or later.
+
+        The last frame's tracks can reach this node before its detections and scheduler state do:
+        they come from other writers, on other topics, and the executor serves them on other
+        threads. Closing the recording at the tracks would then lose the last frame's other
+        outputs. False after ``timeout_s`` (a frame given up after a restart has none to wait for).
+        """
+        if self.recorder is None:
+            return True
+        deadline = time.monotonic() + timeout_s
+        with self._answered_cv:
+            while any(self._newest_recorded.get(topic, -1) < stamp_ns for topic in RECORDED_TOPICS):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or stop.is_set():
+                    return False
+                self._answered_cv.wait(min(remaining, 0.05))
         return True
 
     def note_published(self, stamp_ns: int) -> None:
