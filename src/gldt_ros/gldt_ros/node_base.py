@@ -152,6 +152,9 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     try:
         node = node_factory()
         print(f"[gldt] {node.get_name()} ready", flush=True)
+        # rclpy's global executor, not gldt_ros.spin on an explicit one: with an explicit
+        # SingleThreadedExecutor a node failed to stop on SIGINT within 10 s at the end of 1 of 6
+        # kill-test runs (2026-12-01); with this loop, none of 21.
         rclpy.spin(node)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
