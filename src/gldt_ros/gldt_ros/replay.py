@@ -155,17 +155,16 @@ class GraphDriver(Node):
     def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
         def callback(raw: bytes) -> None:
             now = self.get_clock().now().nanoseconds
+            stamp = header_stamp_ns(raw)
             if self.recorder is not None:
                 self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
                 with self._answered_cv:
-                    stamp = header_stamp_ns(raw)
                     self._newest_recorded[topic] = max(stamp, self._newest_recorded.get(topic, stamp))
                     self._answered_cv.notify_all()
             if topic == topics.TRACKS:
                 received = time.monotonic()
                 with self._answered_cv:
                     self.tracks_received += 1
-                    stamp = header_stamp_ns(raw)
                     if self.args.lockstep:  # only lockstep waits on answers; free runs must not grow a set
                         self._answered.add(stamp)
                     published = self._published_at.pop(stamp, None)
@@ -280,15 +279,15 @@ class GraphDriver(Node):
                     if delay > 0:
                         stop.wait(delay)
                 if message.msgtype in IMAGE_TYPES_SET:
+                    last_stamp = header_stamp_ns(message.data)
                     relinked = self._relink_after_restarts(stop, dead) if self.args.lockstep else None
                     if relinked is not None:
-                        print(f"pipeline: {relinked}; next frame stamped {header_stamp_ns(message.data)}", flush=True)
-                    last_stamp = header_stamp_ns(message.data)
+                        print(f"pipeline: {relinked}; next frame stamped {last_stamp}", flush=True)
                     self.note_published(last_stamp)
                 publisher.publish(message.data)
                 if message.msgtype in IMAGE_TYPES_SET:
                     frames += 1
-                    if self.args.lockstep and not self._wait_answer(header_stamp_ns(message.data), stop, dead):
+                    if self.args.lockstep and not self._wait_answer(last_stamp, stop, dead):
                         waited_out += 1
         except ValueError as error:
             self.get_logger().error(str(error))
