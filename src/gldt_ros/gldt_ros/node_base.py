@@ -23,6 +23,7 @@ from rclpy.node import Node
 
 from gldt_ros import qos, topics
 from gldt_ros.dds_profile import use_frames_profile_if_shipped
+from gldt_ros.executor import executor_kind, spin_node
 from gldt_ros.graph_links import link_key_values, own_link_counts
 from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
@@ -140,11 +141,17 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
 
     A node that cannot start (missing model, bad parameter) logs one line and exits with 1. A
     node that ``publishes_frames`` (images, pairs, crops: messages of a MiB or more) swaps the
-    graph's shipped DDS profile for its large-segment twin (:mod:`gldt_ros.dds_profile`).
+    graph's shipped DDS profile for its large-segment twin (:mod:`gldt_ros.dds_profile`). The
+    executor is ``$GLDT_EXECUTOR``'s (:mod:`gldt_ros.executor`; rclpy's events executor by default).
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
+    try:
+        executor = executor_kind()
+    except ValueError as error:
+        print(f"[gldt] cannot start: {error}", flush=True)
+        return 1
     if publishes_frames:
         use_frames_profile_if_shipped()
     rclpy.init(args=args)
@@ -152,10 +159,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     try:
         node = node_factory()
         print(f"[gldt] {node.get_name()} ready", flush=True)
-        # rclpy's global executor, not gldt_ros.spin on an explicit one: with an explicit
-        # SingleThreadedExecutor a node failed to stop on SIGINT within 10 s at the end of 1 of 6
-        # kill-test runs (2026-12-01); with this loop, none of 21.
-        rclpy.spin(node)
+        spin_node(node, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, FileNotFoundError) as error:

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from gldt_ros.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
+from gldt_ros.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, SINGLE, background_executor, executor_kind
 from gldt_ros.shm_cleanup import remove_dead_segments
 
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
@@ -51,11 +52,14 @@ def default_params_file() -> Path:
 NODE_MALLOC_SETTINGS = {"MALLOC_MMAP_THRESHOLD_": "524288", "MALLOC_ARENA_MAX": "2"}
 
 
-def node_environment(tune_malloc: bool) -> dict[str, str]:
+def node_environment(tune_malloc: bool, executor: str | None = None) -> dict[str, str]:
     """The environment node processes start with: this one's, plus :data:`NODE_MALLOC_SETTINGS`
-    where ``tune_malloc`` and the user has not set them, and the shipped small-segment DDS profile
-    where this process switched to its frames twin (each node picks its own)."""
+    where ``tune_malloc`` and the user has not set them, the shipped small-segment DDS profile
+    where this process switched to its frames twin (each node picks its own), and ``executor``
+    (:mod:`gldt_ros.executor`) where given."""
     env = profile_for_children(dict(os.environ))
+    if executor is not None:
+        env[EXECUTOR_ENV] = executor
     if tune_malloc:
         for key, value in NODE_MALLOC_SETTINGS.items():
             env.setdefault(key, value)
@@ -83,7 +87,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--no-spare", dest="spare", action="store_false",
         help="restart dead nodes from scratch instead of from a warm spare process (saves its memory)",
     )
+    parser.add_argument(
+        "--executor", choices=EXECUTOR_CHOICES, default=None,
+        help=f"rclpy executor of the node processes and of the player (default: ${EXECUTOR_ENV}, else events where rclpy has it; --in-process keeps a thread pool)",
+    )
     args = parser.parse_args(argv)
+    if args.executor is None:
+        try:
+            args.executor = executor_kind()
+        except ValueError as error:
+            parser.error(str(error))
     if args.rate <= 0:
         parser.error(f"--rate must be positive, got {args.rate}")
     if args.bag is not None and not args.bag.exists():
@@ -160,7 +173,7 @@ class NodeProcesses:
                 return
             except OSError:
                 self._discard_spare(spare)  # it died meanwhile; start from scratch
-        process = subprocess.Popen(node_command(name, self.args), start_new_session=True, env=node_environment(self.args.tune_malloc))
+        process = subprocess.Popen(node_command(name, self.args), start_new_session=True, env=node_environment(self.args.tune_malloc, self.args.executor))
         self.processes[name] = process
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
@@ -179,7 +192,7 @@ class NodeProcesses:
         if self.spare is None and time.monotonic() - self._last_restart >= SPARE_DELAY_S:
             self.spare = subprocess.Popen(
                 [sys.executable, "-m", "gldt_ros.spare"], stdin=subprocess.PIPE, start_new_session=True,
-                env=node_environment(self.args.tune_malloc),
+                env=node_environment(self.args.tune_malloc, self.args.executor),
             )
 
     @staticmethod
@@ -282,10 +295,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``ros2 run gldt_ros pipeline``."""
     args = parse_args(argv if argv is not None else sys.argv[1:])
     import rclpy
-    from rclpy.executors import MultiThreadedExecutor
 
     from gldt_ros.replay import GraphDriver
-    from gldt_ros.spin import spin_until_shutdown
 
     use_graph_dds_profile()
     use_frames_profile_if_shipped()  # this process plays the camera (and hosts the buffer --in-process)
@@ -294,10 +305,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
     children: NodeProcesses | None = None
     in_process_nodes = []
-    executor = MultiThreadedExecutor(num_threads=4)
+    # --in-process: the five nodes share this process's executor, which must then serve the
+    # detectors' callbacks beside the player's, so it keeps rclpy's thread pool.
+    executor, spin = background_executor(SINGLE if args.in_process else args.executor)
     driver = GraphDriver(args)
     executor.add_node(driver)
-    spin_thread = threading.Thread(target=spin_until_shutdown, args=(executor,), name="gldt-spin", daemon=True)
+    spin_thread = threading.Thread(target=spin, name="gldt-spin", daemon=True)
     status = 0
     started = time.monotonic()
     try:
@@ -311,7 +324,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         expected = [f"{args.namespace.strip('/')}/{n}".strip("/") for n in NODES]
         if not driver.wait_for_nodes(expected, args.startup_timeout, lambda: children.dead() if children else []):
             return 1
-        print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s", flush=True)
+        spun_by = "one multi-threaded executor" if args.in_process else f"the {args.executor} executor"
+        print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s ({spun_by})", flush=True)
         if children is not None:
             children.supervising = True
             supervisor = threading.Thread(

@@ -499,14 +499,12 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     """Start the graph, measure start-up, play the bag in a loop while sampling; return the report."""
     import rclpy
     from gldt_msgs.msg import TrackArray, TrackPredictions
-    from rclpy.executors import MultiThreadedExecutor
-
     from gldt_ros import qos, topics
     from gldt_ros.bag_io import IMAGE_TYPES_SET, iter_bag
     from gldt_ros.dds_profile import use_frames_profile_if_shipped, use_graph_dds_profile
     from gldt_ros.pipeline import NODES, NodeProcesses, _supervise_until
     from gldt_ros.pipeline import parse_args as pipeline_args
-    from gldt_ros.spin import spin_until_shutdown
+    from gldt_ros.executor import background_executor
 
     pipeline_argv = ["--bag", str(args.bag), "--max-restarts", str(args.max_restarts)] + (["--default-malloc"] if args.default_malloc else [])
     pargs = pipeline_args(pipeline_argv + (["--params", str(args.params)] if args.params else []))
@@ -521,9 +519,9 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     window = TrackWindow()
     driver.create_subscription(TrackArray, topics.TRACKS, window.on_tracks, qos.RELIABLE)
     driver.create_subscription(TrackPredictions, topics.TRACK_PREDICTIONS, window.on_predictions, qos.RELIABLE)
-    executor = MultiThreadedExecutor(num_threads=4)
+    executor, spin_executor = background_executor(pargs.executor)
     executor.add_node(driver)
-    spin = threading.Thread(target=spin_until_shutdown, args=(executor,), daemon=True)
+    spin = threading.Thread(target=spin_executor, daemon=True)
     stop = threading.Event()
     samples: list[Sample] = []
     startup: dict[str, Any] = {}

@@ -1,0 +1,132 @@
+"""Which rclpy executor a node process spins, and the loop that spins it.
+
+rclpy's Python executors rebuild a wait set of every subscription, timer, parameter service and
+guard condition on each callback, in Python. In a five-node graph on two cores that work sits on
+every hop of a frame's chain: a py-spy profile of a lockstep replay (2026-12-01) found the
+tracker and the scheduler spending about half of their non-idle samples in
+``Executor.wait_for_ready_callbacks``. rclpy's C++ ``EventsExecutor`` (``rclpy.experimental``,
+in Jazzy since rclpy 7.1.4) dispatches from middleware events instead, and the small hops of an
+LD frame drop from 1.4-2.4 ms to 0.7-1.4 ms each (``python -m gldt_ros.bench_hops``, README).
+
+``events`` is the default where rclpy has it; ``GLDT_EXECUTOR=single`` (or ``pipeline
+--executor single``) keeps rclpy's own ``SingleThreadedExecutor``. The events executor is driven by
+:meth:`spin_once` with a timeout, never by its ``spin()``: in rclpy 7.1.5 from PyPI, ``spin()``
+dispatched nothing and kept the GIL (a timer callback never ran and another thread's
+``threading.Timer`` never fired), while ``spin_once`` works and lets other threads run. The
+timeout bounds how long a stop can go unnoticed if a shutdown's wake-up were ever missed.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Callable, Mapping
+from typing import Any
+
+#: Environment variable naming the executor of every node process (``pipeline`` sets it for its children).
+EXECUTOR_ENV = "GLDT_EXECUTOR"
+EVENTS = "events"
+SINGLE = "single"
+EXECUTOR_CHOICES = (EVENTS, SINGLE)
+#: Longest wait of one ``spin_once`` of the events executor, seconds.
+EVENTS_POLL_S = 0.2
+
+
+def events_executor_available() -> bool:
+    """Whether this rclpy ships ``rclpy.experimental.EventsExecutor`` (Jazzy's rclpy >= 7.1.4)."""
+    try:
+        from rclpy.experimental import EventsExecutor  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def executor_kind(environ: Mapping[str, str] | None = None) -> str:
+    """The executor a node should spin: ``$GLDT_EXECUTOR`` if set, else ``events`` where rclpy
+    has it and ``single`` where not. An unknown value is a configuration error, named."""
+    environ = os.environ if environ is None else environ
+    requested = environ.get(EXECUTOR_ENV, "").strip().lower()
+    if not requested:
+        return EVENTS if events_executor_available() else SINGLE
+    if requested not in EXECUTOR_CHOICES:
+        raise ValueError(f"{EXECUTOR_ENV}={environ[EXECUTOR_ENV]!r}: expected one of {', '.join(EXECUTOR_CHOICES)}")
+    if requested == EVENTS and not events_executor_available():
+        raise ValueError(f"{EXECUTOR_ENV}=events: this rclpy has no rclpy.experimental.EventsExecutor (needs rclpy >= 7.1.4)")
+    return requested
+
+
+class EventsSpinner:
+    """rclpy's ``EventsExecutor`` driven by ``spin_once`` with a timeout (never its ``spin()``,
+    see the module docstring) until :meth:`shutdown` or the context's shutdown.
+
+    Shaped like an rclpy executor where callers use one (``add_node``, ``spin``, ``shutdown``).
+    ``spin`` treats the races of a shutdown as a stop: rclpy's ``ExternalShutdownException``, and
+    a ``RuntimeError`` once the context or the spinner is shut down
+    (:func:`gldt_ros.spin.spin_until_shutdown` does the same for rclpy's own executors).
+    """
+
+    def __init__(self, context: Any | None = None) -> None:
+        import rclpy
+        from rclpy.experimental import EventsExecutor
+
+        self.context = context if context is not None else rclpy.get_default_context()
+        self.executor = EventsExecutor(context=self.context)
+        self._stopped = threading.Event()
+
+    def add_node(self, node: Any) -> None:
+        self.executor.add_node(node)
+
+    def running(self) -> bool:
+        return self.context.ok() and not self._stopped.is_set()
+
+    def spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        try:
+            while self.running():
+                self.executor.spin_once(timeout_sec=EVENTS_POLL_S)
+        except ExternalShutdownException:
+            pass
+        except RuntimeError:  # rclpy's RCLError and InvalidHandle both derive from RuntimeError
+            if self.running():
+                raise
+
+    def shutdown(self, timeout_sec: float | None = None) -> bool:
+        """Stop :meth:`spin` (within one poll) and shut the executor down."""
+        self._stopped.set()
+        return bool(self.executor.shutdown(timeout_sec=timeout_sec))
+
+
+def spin_node(node: Any, kind: str) -> None:
+    """Spin ``node`` on the ``kind`` executor until its context shuts down (Ctrl-C, SIGTERM via
+    rclpy's handler, ``rclpy.shutdown``)."""
+    import rclpy
+
+    if kind == SINGLE:
+        # rclpy's global executor: with an explicit SingleThreadedExecutor a node once failed to
+        # stop on SIGINT within 10 s at the end of 1 of 6 kill-test runs (2026-12-01); with this
+        # loop, none of 21. Shutdown exceptions propagate, for the caller to treat as a stop.
+        rclpy.spin(node)
+        return
+    spinner = EventsSpinner(node.context)
+    spinner.add_node(node)
+    try:
+        spinner.spin()
+    finally:
+        spinner.shutdown()
+
+
+def background_executor(kind: str, threads: int = 4) -> tuple[Any, Callable[[], None]]:
+    """``(executor, spin)`` for a process that spins its node on a background thread while its
+    main thread works (``pipeline``'s player and recorder, the soak's driver): an
+    :class:`EventsSpinner` for ``events``, else a ``MultiThreadedExecutor`` of ``threads`` (what
+    ``pipeline`` used before). ``spin`` runs until shutdown and treats a shutdown's races as a stop."""
+    if kind == SINGLE:
+        from rclpy.executors import MultiThreadedExecutor
+
+        from gldt_ros.spin import spin_until_shutdown
+
+        threaded = MultiThreadedExecutor(num_threads=threads)
+        return threaded, lambda: spin_until_shutdown(threaded)
+    spinner = EventsSpinner()
+    return spinner, spinner.spin
