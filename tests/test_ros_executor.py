@@ -30,7 +30,7 @@ from gldt_ros.pipeline import default_params_file, node_environment, parse_args 
 
 
 def test_the_events_executor_is_the_default_where_rclpy_has_it() -> None:
-    assert events_executor_available(), "the pinned rclpy (7.1.5) ships rclpy.experimental.EventsExecutor"
+    assert events_executor_available(), "the pinned ros-jazzy-rclpy 7.1.6 ships rclpy.experimental.EventsExecutor"
     assert executor_kind({}) == EVENTS
     assert executor_kind({EXECUTOR_ENV: ""}) == EVENTS
 

@@ -5,12 +5,14 @@ guard condition on each callback, in Python. In a five-node graph on two cores t
 every hop of a frame's chain: a py-spy profile of a lockstep replay (2026-12-01) found the
 tracker and the scheduler spending about half of their non-idle samples in
 ``Executor.wait_for_ready_callbacks``. rclpy's C++ ``EventsExecutor`` (``rclpy.experimental``,
-in Jazzy since rclpy 7.1.4) dispatches from middleware events instead, and the small hops of an
-LD frame drop from 1.4-2.4 ms to 0.7-1.4 ms each (``python -m gldt_ros.bench_hops``, README).
+in Jazzy since rclpy 7.1.4) dispatches from middleware events instead: the small hops of an LD
+frame dropped from 1.4-2.4 ms to 0.7-1.4 ms each (``python -m gldt_ros.bench_hops``), and a
+lockstep replay of the real sample bag from 51-53 to 29-39 ms per frame (``bench_graph``, README).
 
-``events`` is the default where rclpy has it; ``GLDT_EXECUTOR=single`` (or ``pipeline
---executor single``) keeps rclpy's own ``SingleThreadedExecutor``. The events executor is driven by
-:meth:`spin_once` with a timeout, never by its ``spin()``: in rclpy 7.1.5 from PyPI, ``spin()``
+``events`` is the default where rclpy has it. ``GLDT_EXECUTOR=single`` (or ``pipeline --executor
+single``) keeps rclpy's Python executors: ``rclpy.spin`` in the nodes, a thread pool in
+``pipeline``. The events executor is driven by
+:meth:`spin_once` with a timeout, never by its ``spin()``: in rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()``
 dispatched nothing and kept the GIL (a timer callback never ran and another thread's
 ``threading.Timer`` never fired), while ``spin_once`` works and lets other threads run. The
 timeout bounds how long a stop can go unnoticed if a shutdown's wake-up were ever missed.
