@@ -150,3 +150,27 @@ def test_a_bad_executor_choice_stops_a_node_at_start_in_one_line() -> None:
     assert completed.stdout.strip().splitlines() == [
         "[gldt] cannot start: GLDT_EXECUTOR='threads': expected one of events, single"
     ], completed.stdout + completed.stderr
+
+
+def test_a_callback_cut_short_by_shutdown_is_a_stop_but_a_runtime_error_before_it_is_not() -> None:
+    """Ctrl-C mid-callback makes its publish fail with RuntimeError ("publisher's context is
+    invalid"); the events executor would log that as FATAL, so the guard lets it pass, but only
+    once the context is down."""
+    from gldt_ros.nodes import mode_scheduler
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = mode_scheduler.ModeSchedulerNode(context=context)
+
+    def publish_fails(_message: object) -> None:
+        raise RuntimeError("publisher's context is invalid")
+
+    guarded = node.guarded(publish_fails, "test input")
+    try:
+        with pytest.raises(RuntimeError, match="context is invalid"):
+            guarded(object())
+    finally:
+        rclpy.shutdown(context=context)
+    guarded(object())  # the context is down: a stop
+    assert node.frames_dropped == 0, "a stop is not a dropped input"
+    node.destroy_node()

@@ -74,6 +74,12 @@ class GldtNode(Node):
                 line = self._error_lines.text_for(what, str(error))
                 if line is not None:
                     self.get_logger().error(f"dropped {what}: {line}")
+            except RuntimeError:
+                # Ctrl-C shut the context down while this callback ran, and its publish failed
+                # ("publisher's context is invalid"): a stop, not a fault. The events executor
+                # would log it as FATAL before the node exits; rclpy.spin let it pass quietly.
+                if self.context.ok():
+                    raise
             finally:
                 self._processing.append(time.perf_counter() - start)
 
