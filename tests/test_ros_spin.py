@@ -54,6 +54,14 @@ def test_an_error_while_the_context_is_valid_propagates() -> None:
         spin_until_shutdown(_RaisingExecutor(ValueError("a bug in a callback"), context_ok=False))
 
 
+def test_a_caller_can_say_when_the_executor_is_meant_to_run() -> None:
+    """gldt_ros.executor's EventsSpinner is no rclpy executor: it passes its own ``running``."""
+    invalid = RCLError("failed to take: the given context is not valid")
+    spin_until_shutdown(_RaisingExecutor(invalid, context_ok=True), still_running=lambda: False)
+    with pytest.raises(RCLError):
+        spin_until_shutdown(_RaisingExecutor(invalid, context_ok=False), still_running=lambda: True)
+
+
 def test_a_real_spin_thread_ends_without_an_exception_when_its_context_is_shut_down() -> None:
     """Shut the context down under a live spin loop many times; no thread may raise."""
     escaped: list[BaseException] = []

@@ -11,11 +11,11 @@ lockstep replay of the real sample bag from 51-53 to 29-39 ms per frame (``bench
 
 ``events`` is the default where rclpy has it. ``GLDT_EXECUTOR=single`` (or ``pipeline --executor
 single``) keeps rclpy's Python executors: ``rclpy.spin`` in the nodes, a thread pool in
-``pipeline``. The events executor is driven by
-:meth:`spin_once` with a timeout, never by its ``spin()``: in rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()``
-dispatched nothing and kept the GIL (a timer callback never ran and another thread's
-``threading.Timer`` never fired), while ``spin_once`` works and lets other threads run. The
-timeout bounds how long a stop can go unnoticed if a shutdown's wake-up were ever missed.
+``pipeline``. The events executor is driven by :meth:`spin_once` with a timeout, never by its
+``spin()``: in rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()`` dispatched nothing and
+kept the GIL (a timer callback never ran and another thread's ``threading.Timer`` never fired),
+while ``spin_once`` works and lets other threads run. The timeout bounds how long a stop can go
+unnoticed if a shutdown's wake-up were ever missed.
 """
 
 from __future__ import annotations
@@ -61,10 +61,9 @@ class EventsSpinner:
     """rclpy's ``EventsExecutor`` driven by ``spin_once`` with a timeout (never its ``spin()``,
     see the module docstring) until :meth:`shutdown` or the context's shutdown.
 
-    Shaped like an rclpy executor where callers use one (``add_node``, ``spin``, ``shutdown``).
-    ``spin`` treats the races of a shutdown as a stop: rclpy's ``ExternalShutdownException``, and
-    a ``RuntimeError`` once the context or the spinner is shut down
-    (:func:`gldt_ros.spin.spin_until_shutdown` does the same for rclpy's own executors).
+    Shaped like an rclpy executor where callers use one (``add_node``, ``spin``, ``shutdown``);
+    like theirs, ``spin`` lets the exceptions of a shutdown that races it propagate
+    (:func:`gldt_ros.spin.spin_until_shutdown` treats them as a stop, given :meth:`running`).
     """
 
     def __init__(self, context: Any | None = None) -> None:
@@ -82,16 +81,8 @@ class EventsSpinner:
         return self.context.ok() and not self._stopped.is_set()
 
     def spin(self) -> None:
-        from rclpy.executors import ExternalShutdownException
-
-        try:
-            while self.running():
-                self.executor.spin_once(timeout_sec=EVENTS_POLL_S)
-        except ExternalShutdownException:
-            pass
-        except RuntimeError:  # rclpy's RCLError and InvalidHandle both derive from RuntimeError
-            if self.running():
-                raise
+        while self.running():
+            self.executor.spin_once(timeout_sec=EVENTS_POLL_S)
 
     def shutdown(self, timeout_sec: float | None = None) -> bool:
         """Stop :meth:`spin` (within one poll) and shut the executor down."""
@@ -101,13 +92,14 @@ class EventsSpinner:
 
 def spin_node(node: Any, kind: str) -> None:
     """Spin ``node`` on the ``kind`` executor until its context shuts down (Ctrl-C, SIGTERM via
-    rclpy's handler, ``rclpy.shutdown``)."""
+    rclpy's handler, ``rclpy.shutdown``). Shutdown exceptions propagate, for the caller to
+    treat as a stop, as they do from ``rclpy.spin``."""
     import rclpy
 
     if kind == SINGLE:
         # rclpy's global executor: with an explicit SingleThreadedExecutor a node once failed to
         # stop on SIGINT within 10 s at the end of 1 of 6 kill-test runs (2026-12-01); with this
-        # loop, none of 21. Shutdown exceptions propagate, for the caller to treat as a stop.
+        # loop, none of 21.
         rclpy.spin(node)
         return
     spinner = EventsSpinner(node.context)
@@ -123,12 +115,12 @@ def background_executor(kind: str, threads: int = 4) -> tuple[Any, Callable[[], 
     main thread works (``pipeline``'s player and recorder, the soak's driver): an
     :class:`EventsSpinner` for ``events``, else a ``MultiThreadedExecutor`` of ``threads`` (what
     ``pipeline`` used before). ``spin`` runs until shutdown and treats a shutdown's races as a stop."""
+    from gldt_ros.spin import spin_until_shutdown
+
     if kind == SINGLE:
         from rclpy.executors import MultiThreadedExecutor
-
-        from gldt_ros.spin import spin_until_shutdown
 
         threaded = MultiThreadedExecutor(num_threads=threads)
         return threaded, lambda: spin_until_shutdown(threaded)
     spinner = EventsSpinner()
-    return spinner, spinner.spin
+    return spinner, lambda: spin_until_shutdown(spinner, spinner.running)

@@ -499,12 +499,13 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     """Start the graph, measure start-up, play the bag in a loop while sampling; return the report."""
     import rclpy
     from gldt_msgs.msg import TrackArray, TrackPredictions
+
     from gldt_ros import qos, topics
     from gldt_ros.bag_io import IMAGE_TYPES_SET, iter_bag
     from gldt_ros.dds_profile import use_frames_profile_if_shipped, use_graph_dds_profile
+    from gldt_ros.executor import background_executor
     from gldt_ros.pipeline import NODES, NodeProcesses, _supervise_until
     from gldt_ros.pipeline import parse_args as pipeline_args
-    from gldt_ros.executor import background_executor
 
     pipeline_argv = ["--bag", str(args.bag), "--max-restarts", str(args.max_restarts)] + (["--default-malloc"] if args.default_malloc else [])
     pargs = pipeline_args(pipeline_argv + (["--params", str(args.params)] if args.params else []))

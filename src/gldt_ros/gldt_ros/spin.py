@@ -11,20 +11,23 @@ happens while the context is still valid.
 from __future__ import annotations
 
 import threading
-from typing import Any
+from typing import Any, Callable
 
 
-def spin_until_shutdown(executor: Any) -> None:
+def spin_until_shutdown(executor: Any, still_running: Callable[[], bool] | None = None) -> None:
     """Spin ``executor`` until it or its context is shut down; errors caused by that shutdown
-    racing the spin loop are not errors, everything else propagates."""
+    racing the spin loop are not errors, everything else propagates. ``still_running`` tells
+    whether the executor is still meant to run (default: :func:`executor_still_running`, which
+    reads rclpy's own executors)."""
     from rclpy.executors import ExternalShutdownException
 
+    running = still_running if still_running is not None else lambda: executor_still_running(executor)
     try:
         executor.spin()
     except ExternalShutdownException:
         pass
     except RuntimeError:  # rclpy's RCLError and InvalidHandle both derive from RuntimeError
-        if executor_still_running(executor):
+        if running():
             raise
 
 
