@@ -75,8 +75,9 @@ def run_with_kill(
 ) -> KilledRun:
     """Replay ``bag`` through ``command`` (the ``pipeline`` executable) in lockstep, recording to
     ``record``, and SIGKILL node ``victim`` ``kill_after_s`` after every node is up. The default
-    falls mid-replay of the 150-frame sample bag: a lockstep replay of it takes 4-5 s here
-    (it took 6-8 s before the events executor, when the default was 4 s)."""
+    falls mid-replay of the 150-frame sample bag whichever executor runs: a lockstep replay of
+    it takes 6-8 s here on rclpy's own executors and 4-5 s on the events executor, which had
+    finished it before the former 4 s."""
     run = KilledRun(victim=victim, launched=time.time())
     process = subprocess.Popen(
         [*command, "--bag", str(bag), "--lockstep", "--frame-timeout", str(frame_timeout_s), "--record", str(record)],

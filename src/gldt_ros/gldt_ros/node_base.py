@@ -77,7 +77,7 @@ class GldtNode(Node):
             except RuntimeError:
                 # Ctrl-C shut the context down while this callback ran, and its publish failed
                 # ("publisher's context is invalid"): a stop, not a fault. The events executor
-                # would log it as FATAL before the node exits; rclpy.spin let it pass quietly.
+                # logs it as FATAL before the node exits; rclpy.spin let it pass quietly.
                 if self.context.ok():
                     raise
             finally:
@@ -148,7 +148,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     A node that cannot start (missing model, bad parameter) logs one line and exits with 1. A
     node that ``publishes_frames`` (images, pairs, crops: messages of a MiB or more) swaps the
     graph's shipped DDS profile for its large-segment twin (:mod:`gldt_ros.dds_profile`). The
-    executor is ``$GLDT_EXECUTOR``'s (:mod:`gldt_ros.executor`; rclpy's events executor by default).
+    executor is ``$GLDT_EXECUTOR``'s (:mod:`gldt_ros.executor`; rclpy's ``rclpy.spin`` by default).
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException
