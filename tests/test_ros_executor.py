@@ -141,6 +141,7 @@ def test_a_node_process_stops_cleanly_on_sigint(kind: str) -> None:
             process.wait()
     assert process.returncode == 0, output
     assert "Traceback" not in output, output
+    assert "FATAL" not in output, output  # a KeyboardInterrupt inside a callback of the events executor
 
 
 def test_a_bad_executor_choice_stops_a_node_at_start_in_one_line() -> None:
@@ -177,3 +178,28 @@ def test_a_callback_cut_short_by_shutdown_is_a_stop_but_a_runtime_error_before_i
     guarded(object())  # the context is down: a stop
     assert node.frames_dropped == 0, "a stop is not a dropped input"
     node.destroy_node()
+
+
+def test_a_timer_cut_short_by_shutdown_is_a_stop_but_a_runtime_error_before_it_is_not() -> None:
+    """The nodes' timers publish too (diagnostics, links): the same rule as for subscriptions."""
+    from gldt_ros.nodes import mode_scheduler
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = mode_scheduler.ModeSchedulerNode(context=context)
+    calls: list[int] = []
+
+    def publish_fails() -> None:
+        calls.append(1)
+        raise RuntimeError("publisher's context is invalid")
+
+    timer = node.create_timer(3600.0, publish_fails)
+    try:
+        with pytest.raises(RuntimeError, match="context is invalid"):
+            timer.callback()
+    finally:
+        rclpy.shutdown(context=context)
+    timer.callback()  # the context is down: a stop
+    assert len(calls) == 2
+    node.destroy_node()
+

@@ -14,10 +14,12 @@ thread pool in ``pipeline``. ``GLDT_EXECUTOR=events`` (or ``pipeline --executor 
 in. With events as the default, a fresh-clone CI run (2026-12-01) ended a lockstep replay with a
 local_detector that ignored SIGINT for 10 s and SIGTERM for 3 s and had to be killed, once in
 the suite's dozen graph runs; the old executors have not done that since their own fix. Until
-that hang is understood the default stays on the known-good path. The events executor is driven by :meth:`spin_once` with a timeout, never by its
-``spin()``: in rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()`` dispatched nothing and
-kept the GIL (a timer callback never ran and another thread's ``threading.Timer`` never fired),
-while ``spin_once`` works and lets other threads run. The timeout bounds how long a stop can go
+that hang is understood the default stays on the known-good path.
+
+The events executor is driven by :meth:`spin_once` with a timeout, never by its ``spin()``: in
+rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()`` dispatched nothing and kept the GIL (a
+timer callback never ran and another thread's ``threading.Timer`` never fired), while
+``spin_once`` works and lets other threads run. The timeout bounds how long a stop can go
 unnoticed if a shutdown's wake-up were ever missed.
 """
 
@@ -94,6 +96,22 @@ class EventsSpinner:
         """Stop :meth:`spin` (within one poll) and shut the executor down."""
         self._stopped.set()
         return bool(self.executor.shutdown(timeout_sec=timeout_sec))
+
+
+def quiet_sigint_for_events_executor() -> None:
+    """Make SIGINT stop an events-executor node through rclpy alone, without a KeyboardInterrupt.
+
+    Call before ``rclpy.init``. rclpy's SIGINT handler shuts the contexts down (which wakes the
+    executor) and then calls the handler that was installed before it: Python's default one
+    raises KeyboardInterrupt wherever the main thread happens to be. With the events executor
+    that is mostly inside a callback the C++ executor is running (a diagnostics or link timer):
+    it logged "Exception in 'timers' callback" as FATAL in 5 of 15 lockstep replays
+    (2026-12-01). This installs a no-op handler for rclpy to chain to; the spin loop then ends
+    on the context's shutdown.
+    """
+    import signal
+
+    signal.signal(signal.SIGINT, lambda _signum, _frame: None)
 
 
 def spin_node(node: Any, kind: str) -> None:

@@ -23,7 +23,7 @@ from rclpy.node import Node
 
 from gldt_ros import qos, topics
 from gldt_ros.dds_profile import use_frames_profile_if_shipped
-from gldt_ros.executor import executor_kind, spin_node
+from gldt_ros.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_node
 from gldt_ros.graph_links import link_key_values, own_link_counts
 from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
@@ -75,15 +75,31 @@ class GldtNode(Node):
                 if line is not None:
                     self.get_logger().error(f"dropped {what}: {line}")
             except RuntimeError:
-                # Ctrl-C shut the context down while this callback ran, and its publish failed
-                # ("publisher's context is invalid"): a stop, not a fault. The events executor
-                # logs it as FATAL before the node exits; rclpy.spin let it pass quietly.
-                if self.context.ok():
-                    raise
+                self._reraise_unless_stopping()
             finally:
                 self._processing.append(time.perf_counter() - start)
 
         return wrapper
+
+    def create_timer(self, timer_period_sec: float, callback: Callable[[], None], *args: Any, **kwargs: Any) -> Any:
+        """``Node.create_timer`` whose callback may be cut short by a stop, as :meth:`guarded`'s
+        may: every timer of the graph's nodes publishes (diagnostics, links, report timeouts)."""
+
+        def stop_tolerant() -> None:
+            try:
+                callback()
+            except RuntimeError:
+                self._reraise_unless_stopping()
+
+        return super().create_timer(timer_period_sec, stop_tolerant, *args, **kwargs)
+
+    def _reraise_unless_stopping(self) -> None:
+        """Called from an ``except RuntimeError``: Ctrl-C shut the context down while a callback
+        ran, and its publish failed ("publisher's context is invalid"). That is a stop, not a
+        fault; the events executor would log it as FATAL before the node exits, rclpy.spin let it
+        pass quietly. With the context still up, the error is real and propagates."""
+        if self.context.ok():
+            raise
 
     def warn_throttled(self, key: str, text: str) -> None:
         """Log a warning; repeats of the same ``key`` at most once a second, with their count (a
@@ -160,6 +176,8 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
         return 1
     if publishes_frames:
         use_frames_profile_if_shipped()
+    if executor == EVENTS:
+        quiet_sigint_for_events_executor()
     rclpy.init(args=args)
     node = None
     try:
