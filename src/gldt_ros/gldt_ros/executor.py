@@ -14,7 +14,8 @@ thread pool in ``pipeline``. ``GLDT_EXECUTOR=events`` (or ``pipeline --executor 
 in. With events as the default, a fresh-clone CI run (2026-12-01) ended a lockstep replay with a
 local_detector that ignored SIGINT for 10 s and SIGTERM for 3 s and had to be killed, once in
 the suite's dozen graph runs; the old executors have not done that since their own fix. Until
-that hang is understood the default stays on the known-good path.
+that hang is understood the default stays on the known-good path. A likely cause is fixed since
+(:func:`quiet_sigint_for_events_executor`), and two full test runs with events then passed.
 
 The events executor is driven by :meth:`spin_once` with a timeout, never by its ``spin()``: in
 rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()`` dispatched nothing and kept the GIL (a
