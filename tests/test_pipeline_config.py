@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from gldt_core.pipeline.config import PipelineConfig, config_from_dict, load_config
@@ -97,3 +99,27 @@ def test_per_tracker_parameters_reach_the_built_tracker(tmp_path):
     cfg = config_from_dict({"tracker": {"jptrack": {"new_track_thresh": 0.35}, "bytetrack": {"track_thresh": 0.3}}})
     assert build_tracker(cfg).config.new_track_thresh == 0.35
     assert build_tracker(cfg.with_changes(tracker="bytetrack"), (640, 512)).config.track_thresh == 0.3
+
+
+def test_a_relative_model_path_is_found_beside_the_yaml_from_any_working_directory(tmp_path, monkeypatch):
+    folder = tmp_path / "configs"
+    (tmp_path / "models").mkdir()
+    folder.mkdir()
+    (tmp_path / "models" / "mine.onnx").write_bytes(b"x")
+    cfg = folder / "c.yaml"
+    cfg.write_text("detector: {global_model: ../models/mine.onnx, local_model: elsewhere.onnx}\n")
+    monkeypatch.chdir(tmp_path / "models")
+    config = load_config(cfg)
+    assert config.detector.global_model == str((tmp_path / "models" / "mine.onnx").resolve())
+    # No such file beside the YAML: the path keeps meaning one from the working directory.
+    assert config.detector.local_model == "elsewhere.onnx"
+
+
+def test_the_shipped_balanced_models_config_points_at_the_shipped_files(tmp_path, monkeypatch):
+    from gldt_core.paths import REPO_ROOT
+
+    monkeypatch.chdir(tmp_path)
+    config = load_config(REPO_ROOT / "src" / "gldt_core" / "configs" / "pipeline_balanced_models.yaml")
+    for path in (config.detector.global_model, config.detector.local_model):
+        assert Path(path).is_file(), path
+    assert config.scheduler == PipelineConfig().scheduler, "only the models change"

@@ -52,6 +52,9 @@ DEFAULTS: dict[str, Any] = {
         "synthetic_frame_step": 8,
         "synthetic_scale": 1.0,  # resize of the 1080p frames (global: 1/3, the run-time input scale)
         "synthetic_val_scenes": 0,  # scenes of the "val" split added to validation
+        # Fraction of training samples drawn from the synthetic pairs (None: every pair equally
+        # likely, so the share is whatever the pair counts make it, about 20 % for the global mix).
+        "synthetic_share": None,
         "input_size": [256, 256],  # training crop (w, h); global validation uses val_size
         "val_size": [640, 512],
         "roi": 300,  # training window side (frame px) for the local model; scale = input_size / roi
@@ -177,15 +180,38 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
     rng = np.random.default_rng(seed)
     n_val = min(len(val_ds), data["val_max_images"])
     val_subset = Subset(val_ds, sorted(rng.choice(len(val_ds), n_val, replace=False).tolist()))
+    train_ds.sample_weights = sample_weights(len(train_pairs) - len(synthetic), len(synthetic), data["synthetic_share"])
     info = {
         "real_train_clips": split["train"] if data["use_real"] else [],
         "real_val_clips": split["val"],
         "real_train_pairs": len(train_pairs) - len(synthetic),
         "synthetic_train_pairs": len(synthetic),
         "synthetic_train_scenes": data["synthetic_scenes"],
+        "synthetic_share": data["synthetic_share"],
         "val_pairs_used_per_epoch": n_val,
     }
     return train_ds, val_subset, info
+
+
+def sample_weights(num_real: int, num_synthetic: int, synthetic_share: float | None) -> list[float] | None:
+    """Per-pair sampling weights (real pairs first) that give the synthetic pairs ``synthetic_share``
+    of the draws; ``None`` when every pair is to be equally likely.
+
+    Why: the real clips outnumber the synthetic scenes' pairs about 4 to 1, and a detector trained
+    on that mix learns the real drones' look and misses the synthetic ones (issue #6 README).
+    """
+    if synthetic_share is None:
+        return None
+    share = float(synthetic_share)
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"data.synthetic_share must be within [0, 1], got {synthetic_share!r}")
+    if num_synthetic == 0 and share > 0.0:
+        raise ValueError(f"data.synthetic_share is {share} but no synthetic pairs were loaded (data.synthetic_scenes is 0)")
+    if num_real == 0 and share < 1.0:
+        raise ValueError(f"data.synthetic_share is {share} but no real pairs were loaded (data.use_real is false)")
+    real_weight = (1.0 - share) / num_real if num_real else 0.0
+    synthetic_weight = share / num_synthetic if num_synthetic else 0.0
+    return [real_weight] * num_real + [synthetic_weight] * num_synthetic
 
 
 def resolve_device(name: str) -> torch.device:
@@ -320,7 +346,12 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
             break
         train_ds.epoch = epoch  # read by the loader's workers, which start afresh each epoch
         model.train()
-        sampler = torch.utils.data.RandomSampler(train_ds, replacement=True, num_samples=tcfg["steps_per_epoch"] * tcfg["batch_size"], generator=generator)
+        draws = tcfg["steps_per_epoch"] * tcfg["batch_size"]
+        weights = getattr(train_ds, "sample_weights", None)
+        if weights is None:
+            sampler = torch.utils.data.RandomSampler(train_ds, replacement=True, num_samples=draws, generator=generator)
+        else:
+            sampler = torch.utils.data.WeightedRandomSampler(weights, num_samples=draws, replacement=True, generator=generator)
         loader = DataLoader(
             train_ds, batch_size=tcfg["batch_size"], sampler=sampler, collate_fn=collate, num_workers=workers,
             pin_memory=device.type == "cuda", prefetch_factor=4 if workers else None,

@@ -9,7 +9,7 @@ Example (every key shown with its default)::
     scheduler: {n_global: 30, n_local: 120, n_miss: 10, local_enabled: true}
     roi: {size: 300, tau_overlap: 0.2, tau_distance: 700, tau_safe: 0.8}
     detector:
-      global_model: null      # path to an ONNX file; null = the shipped model
+      global_model: null      # path to an ONNX file (relative: beside this YAML, else from the working directory); null = the shipped model
       local_model: null
       score_threshold: 0.1    # null = the detector's own default (0.25)
       providers: [CPUExecutionProvider]
@@ -221,4 +221,22 @@ def load_config(path: str | Path | None) -> PipelineConfig:
         mark = getattr(error, "problem_mark", None)
         where = f"{path}:{mark.line + 1}" if mark is not None else str(path)
         raise ValueError(f"{where}: not valid YAML ({getattr(error, 'problem', error)})") from None
-    return config_from_dict(data, source=str(path))
+    return with_models_found_beside(config_from_dict(data, source=str(path)), path.parent)
+
+
+def with_models_found_beside(config: PipelineConfig, folder: Path) -> PipelineConfig:
+    """``config`` with each relative model path that names a file under ``folder`` (the YAML's
+    own folder) made to point there.
+
+    Why: a config that ships next to its models (``gldt_core/configs/pipeline_balanced_models.yaml``)
+    must work from any working directory. A relative path with no such file keeps meaning a path
+    from the working directory, as it did before.
+    """
+    changes = {}
+    for key in ("global_model", "local_model"):
+        value = getattr(config.detector, key)
+        if value is not None and not Path(value).is_absolute() and (folder / value).is_file():
+            changes[key] = str((folder / value).resolve())
+    if not changes:
+        return config
+    return dataclasses.replace(config, detector=dataclasses.replace(config.detector, **changes))

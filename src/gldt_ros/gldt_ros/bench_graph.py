@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import shutil
 import subprocess
@@ -29,18 +30,33 @@ import time
 from pathlib import Path
 
 
-def offline_seconds_per_frame(bag: Path) -> tuple[float, float, int]:
-    """``(seconds per frame, of which decoding, frames)`` of ``GLDTPipeline`` on ``bag``: reading
-    and decoding each frame (as the graph's player reads and its buffer decodes) plus processing."""
+def offline_seconds_per_frame(bag: Path) -> tuple[float, float, int, float]:
+    """``(seconds per frame, of which decoding, frames, the bag's frame rate)`` of ``GLDTPipeline``
+    on ``bag``: reading and decoding each frame (as the graph's player reads and its buffer
+    decodes) plus processing. The frame rate comes from the camera stamps."""
     from gldt_core.data import open_source
     from gldt_core.pipeline.pipeline import GLDTPipeline
     from gldt_core.pipeline.runner import run_frames
 
     pipeline = GLDTPipeline()
+    stamps: list[float] = []
     start = time.perf_counter()
-    result = run_frames(pipeline, open_source(str(bag)))
+    result = run_frames(pipeline, open_source(str(bag)), on_frame=lambda frame, _tracks: stamps.append(frame.stamp))
     frames = max(result.frames, 1)
-    return (time.perf_counter() - start) / frames, pipeline.timer.seconds.get("decode", 0.0) / frames, result.frames
+    return (time.perf_counter() - start) / frames, pipeline.timer.seconds.get("decode", 0.0) / frames, result.frames, stamp_rate(stamps)
+
+
+def stamp_rate(stamps: list[float]) -> float:
+    """Frames per second of a stream stamped ``stamps`` (seconds); 30 when there are too few to tell."""
+    if len(stamps) < 2 or stamps[-1] <= stamps[0]:
+        return 30.0
+    return (len(stamps) - 1) / (stamps[-1] - stamps[0])
+
+
+def sustained_rate(core_seconds_per_frame: float, bag_fps: float) -> float:
+    """The replay rate factor at which the core keeps up with the bag (issue #8's "the rate the
+    core sustains"): 1 when the core is faster than the camera, else its share of the camera's rate."""
+    return min(1.0, 1.0 / (core_seconds_per_frame * bag_fps))
 
 
 def graph_run(bag: Path, extra: list[str]) -> str:
@@ -79,10 +95,16 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     mode = ["--in-process"] if args.in_process else []
 
-    offline_s, decode_s, frames = offline_seconds_per_frame(args.bag)
+    offline_s, decode_s, frames, bag_fps = offline_seconds_per_frame(args.bag)
     lockstep = graph_run(args.bag, ["--lockstep", *mode])
     lockstep_s = float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames
     free = graph_run(args.bag, ["--rate", str(args.rate), *mode])
+    core_rate = sustained_rate(offline_s, bag_fps)
+    # The latency goal holds "at the rate the core sustains": where the core is slower than the
+    # camera, replay once more at that rate (rounded down, so the graph is not judged on a rate
+    # the core itself misses).
+    core_rate = math.floor(core_rate * 1000) / 1000
+    core_rate_run = graph_run(args.bag, ["--rate", f"{core_rate:.3f}", *mode]) if core_rate < args.rate else None
     startup = startup_run(args.bag)
     print(f"bench_graph: {args.bag.name}, {frames} frames, nodes {'in one process' if args.in_process else 'one process each'}")
     print(
@@ -95,6 +117,11 @@ def main(argv: list[str] | None = None) -> int:
         f"{100 * (lockstep_s / (offline_s - decode_s) - 1):+.1f} % against the core without decoding)"
     )
     print(f"  free-running x{args.rate:g}    : {free.split('pipeline: ', 1)[1]}")
+    if core_rate_run is not None:
+        print(
+            f"  free-running x{core_rate:.3f} : {core_rate_run.split('pipeline: ', 1)[1]} "
+            f"(the rate the core sustains, {core_rate * bag_fps:.1f} of the bag's {bag_fps:.1f} fps; goal p99 <= 100 ms, none unanswered)"
+        )
     first = startup.get("first_track_s")
     first_text = "no track within 60 s" if first is None else f"first non-empty track {first:.2f} s"
     print(f"  start-up              : all nodes ready {startup.get('ready_s', float('nan')):.2f} s, {first_text} after launch (goal <= 5 s)")

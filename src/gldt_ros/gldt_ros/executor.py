@@ -14,8 +14,10 @@ thread pool in ``pipeline``. ``GLDT_EXECUTOR=events`` (or ``pipeline --executor 
 in. With events as the default, a fresh-clone CI run (2026-12-01) ended a lockstep replay with a
 local_detector that ignored SIGINT for 10 s and SIGTERM for 3 s and had to be killed, once in
 the suite's dozen graph runs; the old executors have not done that since their own fix. Until
-that hang is understood the default stays on the known-good path. A likely cause is fixed since
-(:func:`quiet_sigint_for_events_executor`), and two full test runs with events then passed.
+that hang is fixed the default stays on the known-good path. One cause is fixed since
+(:func:`quiet_sigint_for_events_executor`), but the hang came back in 2 of 21 runs of the graph
+suites (2026-12-02), and a stack dump (:mod:`gldt_ros.stack_dump`) placed it inside rclpy's
+``Node.destroy_node``, destroying the type-description service after this executor had shut down.
 
 The events executor is driven by :meth:`spin_once` with a timeout, never by its ``spin()``: in
 rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()`` dispatched nothing and kept the GIL (a

@@ -25,6 +25,7 @@ from typing import Callable, Sequence
 from gldt_ros.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, SINGLE, background_executor, executor_kind
 from gldt_ros.shm_cleanup import remove_dead_segments
+from gldt_ros.stack_dump import STACK_DUMP_SIGNAL
 
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
 
@@ -270,6 +271,9 @@ class NodeProcesses:
             try:
                 code = process.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
+                print(f"pipeline: node {name} did not stop within {grace_s:g} s of SIGINT; its threads' stacks follow, then SIGTERM", flush=True)
+                process.send_signal(STACK_DUMP_SIGNAL)
+                time.sleep(0.5)  # faulthandler writes from its signal handler; let it finish
                 process.terminate()
                 try:
                     code = process.wait(timeout=3.0)
