@@ -26,8 +26,8 @@ from gldt_ros.dds_profile import use_frames_profile_if_shipped
 from gldt_ros.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_node
 from gldt_ros.graph_links import link_key_values, own_link_counts
 from gldt_ros.log_throttle import LogThrottle
-from gldt_ros.stack_dump import dump_stacks_on_request
 from gldt_ros.params import SCHEMA, ParamSpec
+from gldt_ros.stack_dump import dump_stacks_on_request
 
 
 #: How often a node checks whether its matched peers changed (a cheap count per topic).
