@@ -28,6 +28,7 @@ from gldt_ros.graph_links import link_key_values, own_link_counts
 from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
 from gldt_ros.stack_dump import dump_stacks_on_request
+from gldt_ros.teardown_limit import limit_teardown
 
 
 #: How often a node checks whether its matched peers changed (a cheap count per topic).
@@ -199,6 +200,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
         if rclpy.ok():
             raise
     finally:
+        limit_teardown()  # rclpy's destroy_node can hang; the node's work is done by now
         if node is not None:
             node.destroy_node()
         if rclpy.ok():

@@ -26,6 +26,7 @@ from gldt_ros.dds_profile import profile_for_children, use_frames_profile_if_shi
 from gldt_ros.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, SINGLE, background_executor, executor_kind
 from gldt_ros.shm_cleanup import remove_dead_segments
 from gldt_ros.stack_dump import STACK_DUMP_SIGNAL
+from gldt_ros.teardown_limit import TEARDOWN_LIMIT_S, TEARDOWN_TIMEOUT_EXIT
 
 NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
 
@@ -280,7 +281,10 @@ class NodeProcesses:
                 except subprocess.TimeoutExpired:
                     process.kill()
                     code = process.wait()
-            if code not in (0, -signal.SIGINT, 130):
+            if code == TEARDOWN_TIMEOUT_EXIT:
+                # Stopped serving, then stuck in rclpy's destroy_node; it ended itself (its stacks are above).
+                print(f"pipeline: node {name} stopped, but its rclpy teardown hung and it exited after {TEARDOWN_LIMIT_S} s", flush=True)
+            elif code not in (0, -signal.SIGINT, 130):
                 print(f"pipeline: node {name} exited with code {code}", flush=True)
                 unclean += 1
         report_removed_segments()
