@@ -65,3 +65,34 @@ def test_pr_auc_and_mismatched_lists() -> None:
     assert pr_auc(match(dets, gts, 0.5)) == pytest.approx(0.5)
     with pytest.raises(ValueError, match="2 detection lists but 1"):
         match(dets, gts[:1], 0.5)
+
+
+def test_error_breakdown_puts_each_drone_in_one_bucket_and_sorts_the_false_positives() -> None:
+    from gldt_core.detect.metrics import error_breakdown
+
+    gts = [np.array([[0, 0, 10, 10], [100, 100, 110, 110], [200, 200, 210, 210], [300, 300, 310, 310]], float)]
+    dets = [
+        np.array(
+            [
+                [0, 0, 10, 10, 0.9, 1],  # found
+                [1, 1, 11, 11, 0.8, 1],  # a second box on the found drone: a false positive on an object
+                [100, 100, 110, 110, 0.7, 2],  # right box, called a bird
+                [203, 203, 213, 213, 0.6, 1],  # IoU 0.32: the box is off (and a false positive on an object)
+                [500, 500, 510, 510, 0.5, 1],  # background
+                [600, 600, 610, 610, 0.1, 1],  # background, under the operating threshold
+            ]
+        )
+    ]
+    out = error_breakdown(dets, gts, target_class=1, score_threshold=0.25)
+    assert out["num_gt"] == 4
+    assert (out["found"], out["other_class"], out["poorly_placed"], out["missed"]) == (1, 1, 1, 1)
+    assert (out["fp_on_object"], out["fp_background"]) == (2, 1)
+
+
+def test_error_breakdown_takes_empty_frames_and_checks_lengths() -> None:
+    from gldt_core.detect.metrics import error_breakdown
+
+    out = error_breakdown([np.zeros((0, 6)), np.array([[5, 5, 9, 9, 0.9, 1]])], [np.zeros((0, 4)), np.zeros((0, 4))], 1, 0.25)
+    assert out["num_gt"] == 0 and out["fp_background"] == 1 and out["fp_on_object"] == 0
+    with pytest.raises(ValueError, match="2 detection lists but 1"):
+        error_breakdown([np.zeros((0, 6))] * 2, [np.zeros((0, 4))], 1, 0.25)

@@ -81,6 +81,30 @@ def test_decode_output_thresholds_picks_class_and_suppresses() -> None:
         decode_output(np.zeros((3, 5), np.float32), 0.5)
 
 
+def test_decode_output_asked_about_some_classes_scores_them_by_their_own_score() -> None:
+    # Anchor 0: bird 0.6 over drone 0.4 (the held-out drone a bird label loses); anchor 1: drone.
+    out = np.array(
+        [
+            [10, 100],
+            [10, 100],
+            [20, 120],
+            [20, 120],
+            [0.4, 0.7],  # drone
+            [0.6, 0.1],  # bird
+            [0.05, 0.2],  # airplane
+        ],
+        np.float32,
+    )
+    assert decode_output(out, 0.3)[:, 5].tolist() == [0.0, 1.0]  # every class: anchor 0 (second by score) is a bird
+    drones = decode_output(out, 0.3, channels=np.array([0]))
+    assert drones[:, 4].tolist() == pytest.approx([0.7, 0.4]) and drones[:, 5].tolist() == [0.0, 0.0]
+    others = decode_output(out, 0.15, channels=np.array([1, 2]))  # the best among bird and airplane
+    assert others[:, 5].tolist() == [1.0, 2.0] and others[:, 4].tolist() == pytest.approx([0.6, 0.2])
+    for bad in ([], [3], [-1]):
+        with pytest.raises(ValueError, match="channels must be a non-empty list of class indices below 3"):
+            decode_output(out, 0.3, channels=np.array(bad, dtype=np.int64))
+
+
 def test_tiles_cover_the_frame_with_overlap() -> None:
     rois = tile_rois(1920, 1080, 300)
     covered = np.zeros((1080, 1920), bool)

@@ -53,6 +53,22 @@ def test_global_detect_contract(global_detector: GlobalDetector) -> None:
     assert (np.diff(dets[:, 4]) <= 0).all()  # sorted by score
 
 
+def test_detectors_asked_about_some_classes_report_only_those(global_detector: GlobalDetector) -> None:
+    prev, cur = textured_frame(1920, 1080, 1), textured_frame(1920, 1080, 2)
+    every = global_detector.detect(prev, cur)
+    assert len(np.unique(every[:, 5])) > 1  # at score 0 the model names several classes here
+    for classes in ((1,), (2, 3)):
+        asked = GlobalDetector(score_threshold=0.0, num_threads=1, classes=classes).detect(prev, cur)
+        assert len(asked) and set(np.unique(asked[:, 5]).tolist()) <= set(map(float, classes))
+    rois = np.array([[100, 100, 400, 400], [800, 300, 1100, 600]])
+    local = LocalDetector(score_threshold=0.0, num_threads=1, classes=(1,)).detect_rois(cur, rois)
+    assert len(local) and set(local[:, 5].tolist()) == {1.0}
+    with pytest.raises(DetectorConfigError, match=r"classes \[4\] asked for, but the model outputs classes \[1, 2, 3\]"):
+        GlobalDetector(classes=(4,))
+    with pytest.raises(DetectorConfigError, match="asked for"):
+        LocalDetector(classes=())
+
+
 def test_unoptimized_global_session_has_the_same_geometry_and_boxes(global_detector: GlobalDetector) -> None:
     """The frame buffer opens the model without graph optimisation (faster start): it must
     letterbox exactly as the detector does, and the model must mean the same."""
@@ -143,3 +159,4 @@ def test_detect_pair_reuses_the_previous_input_with_identical_boxes(global_detec
     stale = global_detector.detect_pair(frames[1], frames[2], np.zeros((64, 64, 3), np.uint8))[0]
     np.testing.assert_array_equal(stale, global_detector.detect(frames[1], frames[2]))
     assert second_input.shape == first_input.shape
+

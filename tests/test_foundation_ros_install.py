@@ -158,3 +158,11 @@ def test_pipeline_starts_and_stops_cleanly() -> None:
     text = "".join(lines)
     assert process.returncode == 0, f"pipeline exited with {process.returncode}:\n{text}"
     assert "Traceback" not in text, text
+
+
+def test_the_detector_nodes_ask_the_model_about_their_classes_parameter() -> None:
+    from gldt_ros.params import detector_kwargs
+
+    params = {"model_path": "", "providers": "CPUExecutionProvider", "num_threads": 1, "score_threshold": 0.1, "classes": "1"}
+    assert detector_kwargs(params.get)["classes"] == (1,)
+    assert detector_kwargs({**params, "classes": ""}.get)["classes"] is None

@@ -150,3 +150,45 @@ def test_training_configs_load_and_reject_bad_sizes(tmp_path) -> None:
     bad.write_text(yaml.safe_dump(raw))
     with pytest.raises(ValueError, match="unknown config key 'train.epochz'"):
         load_config(bad)
+
+
+def test_a_training_config_extends_another_and_states_only_what_it_changes(tmp_path) -> None:
+    from pathlib import Path
+
+    from gldt_core.nn.train import load_config
+
+    configs = Path(__file__).resolve().parents[1] / "src" / "gldt_core" / "configs"
+    base, balanced = load_config(configs / "global_tiny.yaml"), load_config(configs / "global_tiny_balanced.yaml")
+    assert balanced["data"]["synthetic_share"] == 0.5 and base["data"]["synthetic_share"] is None
+    balanced["data"]["synthetic_share"], balanced["out_dir"] = None, base["out_dir"]
+    assert balanced == base  # nothing else differs: nested keys were merged, not replaced
+
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "variant.yaml").write_text("extends: ../base.yaml\ntrain:\n  epochs: 3\n")
+    (tmp_path / "base.yaml").write_text("extends: sub/variant.yaml\n")
+    with pytest.raises(ValueError, match="'extends' makes a cycle"):
+        load_config(tmp_path / "sub" / "variant.yaml")
+    (tmp_path / "base.yaml").write_text("train:\n  epochs: 7\n  lr: 0.01\n")
+    config = load_config(tmp_path / "sub" / "variant.yaml")  # the path is relative to the extending file
+    assert (config["train"]["epochs"], config["train"]["lr"]) == (3, 0.01)
+    (tmp_path / "lost.yaml").write_text("extends: nowhere.yaml\n")
+    with pytest.raises(FileNotFoundError, match=r"nowhere\.yaml \(extended by .*lost\.yaml\)"):
+        load_config(tmp_path / "lost.yaml")
+    (tmp_path / "odd.yaml").write_text("extends: [a.yaml]\n")
+    with pytest.raises(ValueError, match="'extends' must be a path"):
+        load_config(tmp_path / "odd.yaml")
+    (tmp_path / "typo.yaml").write_text("extends: base.yaml\ntrain:\n  epochz: 3\n")
+    with pytest.raises(ValueError, match="unknown config key 'train.epochz'"):
+        load_config(tmp_path / "typo.yaml")
+
+
+def test_every_shipped_training_config_loads() -> None:
+    from pathlib import Path
+
+    from gldt_core.nn.train import load_config, spec_for_task
+
+    configs = Path(__file__).resolve().parents[1] / "src" / "gldt_core" / "configs"
+    names = sorted(p for p in configs.glob("*.yaml") if not p.name.startswith("pipeline_"))
+    assert len(names) >= 10
+    for path in names:
+        spec_for_task("local" if path.name.startswith("local") else "global", load_config(path))

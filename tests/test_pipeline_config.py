@@ -123,3 +123,15 @@ def test_the_shipped_balanced_models_config_points_at_the_shipped_files(tmp_path
     for path in (config.detector.global_model, config.detector.local_model):
         assert Path(path).is_file(), path
     assert config.scheduler == PipelineConfig().scheduler, "only the models change"
+
+
+def test_the_detectors_are_asked_about_the_tracked_classes(tmp_path):
+    from gldt_core.pipeline.pipeline import build_detectors
+
+    global_detector, local_detector = build_detectors(PipelineConfig())
+    for detector in (global_detector, local_detector):
+        assert detector.classes == (1,) and detector.class_channels.tolist() == [0]
+    path = tmp_path / "all.yaml"
+    path.write_text("detector: {classes: null}\nscheduler: {local_enabled: false}\n")
+    global_detector, local_detector = build_detectors(load_config(path))
+    assert global_detector.classes is None and global_detector.class_channels is None and local_detector is None

@@ -7,6 +7,11 @@ Accuracy (drone class, IoU-matched as in COCO; see :mod:`gldt_core.detect.metric
   held-out bird/airplane clips at the operating threshold;
 * synthetic: frames of the ``gldt_core.sim.presets`` "test" scenes (1080p), never trained on.
 
+The detectors are asked about drones only, as the pipeline asks them (``--all-classes``: about
+every class, keeping the boxes whose best class is drone). A line per model then says where the
+drones went: found, boxed under another class, boxed badly or missed, and what its false drones
+at the operating threshold are (:func:`gldt_core.detect.metrics.error_breakdown`).
+
 The global models see each frame with its predecessor; the local model covers the frame with
 300 px ROI tiles (one batch per frame) since no tracker is there to place ROIs. Latency is the
 median wall time of one detector call (pre-processing, inference, decoding, NMS) on a 1920x1080
@@ -36,6 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--long-side", type=int, default=None,
         help="global models' input long side in px (default: each model card's; a multiple of 64), e.g. 1280 to ask whether small drones are missed for want of resolution",
     )
+    parser.add_argument(
+        "--all-classes", action="store_true",
+        help="ask the detectors about every class and keep the boxes labelled drone (as before 2026-12-02); default: ask about drones only, as the pipeline does",
+    )
     parser.add_argument("--latency-runs", type=int, default=30)
     parser.add_argument("--latency-threads", type=int, nargs="+", default=[1, 2], help="onnxruntime thread counts to time")
     parser.add_argument("--out", default="out/bench_detection", help="folder for the PNG curves and a JSON of all numbers")
@@ -44,20 +53,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, object]:
-    from gldt_core.detect import GlobalDetector, LocalDetector, shipped_model_path
+    from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector, LocalDetector, shipped_model_path
 
+    common = {"score_threshold": threshold, "num_threads": args.threads, "classes": None if args.all_classes else (DRONE_CLASS_ID,)}
     return {
-        "AM-YOLO": GlobalDetector(args.global_model or shipped_model_path("global"), score_threshold=threshold, num_threads=args.threads, long_side=args.long_side),
-        "no-STFF": GlobalDetector(args.nostff_model or shipped_model_path("global_nostff"), score_threshold=threshold, num_threads=args.threads, long_side=args.long_side),
-        "local": LocalDetector(args.local_model or shipped_model_path("local"), score_threshold=threshold, num_threads=args.threads),
+        "AM-YOLO": GlobalDetector(args.global_model or shipped_model_path("global"), long_side=args.long_side, **common),
+        "no-STFF": GlobalDetector(args.nostff_model or shipped_model_path("global_nostff"), long_side=args.long_side, **common),
+        "local": LocalDetector(args.local_model or shipped_model_path("local"), **common),
     }
 
 
+def _drones(detections: list) -> list:
+    """The drone rows ``(N, 5)`` of each frame's ``(N, 6)`` detections."""
+    from gldt_core.detect import DRONE_CLASS_ID
+
+    return [d[d[:, 5] == DRONE_CLASS_ID][:, :5] for d in detections]
+
+
 def _run_detector(name: str, detector: object, frames_prev_cur: list[tuple], roi_side: int) -> list:
-    """Drone detections ``(N, 5)`` per evaluated frame."""
+    """Detections of every class ``(N, 6)`` (``x1, y1, x2, y2, score, MOT class``) per evaluated frame."""
     import numpy as np
 
-    from gldt_core.detect import DRONE_CLASS_ID
     from gldt_core.detect.postprocess import nms
     from gldt_core.detect.video import tile_rois
 
@@ -70,7 +86,7 @@ def _run_detector(name: str, detector: object, frames_prev_cur: list[tuple], roi
                 dets = dets[nms(dets[:, :4], dets[:, 4], 0.5)]
         else:
             dets = detector.detect(previous, current)  # type: ignore[attr-defined]
-        out.append(dets[dets[:, 5] == DRONE_CLASS_ID][:, :5] if len(dets) else np.zeros((0, 5), np.float32))
+        out.append(dets[:, :6] if len(dets) else np.zeros((0, 6), np.float32))
     return out
 
 
@@ -115,6 +131,17 @@ def _synthetic_frames(scenes: int, frames: int) -> tuple[list, list]:
                 gts.append(np.column_stack((rows[:, 2], rows[:, 3], rows[:, 2] + rows[:, 4], rows[:, 3] + rows[:, 5])))
             previous = current
     return pairs, gts
+
+
+def _breakdown_line(dataset: str, model: str, errors: dict, threshold: float) -> str:
+    """One line of :func:`~gldt_core.detect.metrics.error_breakdown`, as shares of the drones."""
+    n = max(errors["num_gt"], 1.0)
+    share = lambda key: f"{100 * errors[key] / n:5.1f} %"  # noqa: E731
+    return (
+        f"  {dataset:16s} {model:8s} found {share('found')}, called another class {share('other_class')}, "
+        f"box off {share('poorly_placed')}, missed {share('missed')}; "
+        f"false drones at {threshold}: {int(errors['fp_on_object'])} on an object, {int(errors['fp_background'])} on background"
+    )
 
 
 def _latency(fn, runs: int) -> float:
@@ -166,8 +193,9 @@ def _run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
+    from gldt_core.detect import DRONE_CLASS_ID
     from gldt_core.detect.halmstad_split import halmstad_split
-    from gldt_core.detect.metrics import detection_summary, match
+    from gldt_core.detect.metrics import detection_summary, error_breakdown, match
 
     if args.frame_step < 1:
         raise ValueError(f"--frame-step must be >= 1, got {args.frame_step}")
@@ -200,23 +228,31 @@ def _run(args: argparse.Namespace) -> int:
         datasets["synthetic-test"] = _synthetic_frames(args.synthetic_scenes, args.synthetic_frames)
 
     print(f"{'dataset':16s} {'model':8s} {'frames':>6s} {'gt':>5s} {'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s}")
+    breakdowns: list[str] = []
     for dname, (pairs, gts) in datasets.items():
         curves = {}
         report["datasets"][dname] = {}
         for name, detector in detectors.items():
-            dets = _run_detector(name, detector, pairs, roi_side)
+            every_class = _run_detector(name, detector, pairs, roi_side)
+            dets = _drones(every_class)
             summary = detection_summary(dets, gts)
             curves[name] = match(dets, gts, 0.5)
             report["datasets"][dname][name] = summary
+            errors = error_breakdown(every_class, gts, DRONE_CLASS_ID, args.score_threshold)
+            report.setdefault("errors", {}).setdefault(dname, {})[name] = errors
+            breakdowns.append(_breakdown_line(dname, name, errors, args.score_threshold))
             print(f"{dname:16s} {name:8s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} {summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f}")
         _plot(curves, out / f"pr_{dname}.png", out / f"recall_confidence_{dname}.png", f"drone, {dname}")
         a, b = report["datasets"][dname]["AM-YOLO"]["ap50"], report["datasets"][dname]["no-STFF"]["ap50"]
         print(f"{dname}: AM-YOLO - no-STFF AP50 margin {a - b:+.3f}")
+    if breakdowns:
+        print("where the drones went (IoU 0.5; every reported box) and the false drones at the operating threshold:")
+        print("\n".join(breakdowns))
 
     if negatives is not None and negatives[0]:
         report["false_drones_per_frame"] = {}
         for name, detector in detectors.items():
-            dets = _run_detector(name, detector, negatives[0], roi_side)
+            dets = _drones(_run_detector(name, detector, negatives[0], roi_side))
             rate = float(np.mean([(d[:, 4] >= args.score_threshold).sum() for d in dets]))
             report["false_drones_per_frame"][name] = rate
             print(f"bird/airplane clips ({len(dets)} frames): {name:8s} false drone detections per frame at score >= {args.score_threshold}: {rate:.3f}")

@@ -35,7 +35,9 @@ def _run(args: argparse.Namespace) -> int:
 
     providers = tuple(p.strip() for p in args.providers.split(",") if p.strip())
     cls = GlobalDetector if args.detector == "global" else LocalDetector
-    detector = cls(model_path=args.model, providers=providers, score_threshold=args.score_threshold, num_threads=args.threads)
+    # Asked about drones only, a box is a drone whenever its drone score passes (decode_output).
+    classes = (DRONE_CLASS_ID,) if args.classes == "drone" else None
+    detector = cls(model_path=args.model, providers=providers, score_threshold=args.score_threshold, num_threads=args.threads, classes=classes)
     frames = tqdm(iter_video_frames(args.video), desc=f"detect ({args.detector})", unit="frame", disable=args.no_progress)
     roi = int(getattr(detector, "card", {}).get("roi_side", 300))
     rows = detect_frames(frames, detector, args.detector, roi_side=roi)

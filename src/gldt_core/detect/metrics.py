@@ -145,3 +145,69 @@ def detection_summary(detections: list[np.ndarray], ground_truths: list[np.ndarr
         "pr_auc": pr_auc(at50),
         "num_gt": float(at50.num_gt),
     }
+
+
+#: Below this IoU a detection is not about a ground truth at all (for :func:`error_breakdown`).
+NEAR_IOU = 0.1
+
+
+def error_breakdown(
+    detections: list[np.ndarray],
+    ground_truths: list[np.ndarray],
+    target_class: int,
+    score_threshold: float,
+    iou_threshold: float = 0.5,
+) -> dict[str, float]:
+    """Where a detector loses AP on one class: what became of each ground truth, and what its
+    false positives at ``score_threshold`` are.
+
+    AP alone does not say whether to fix the class decision, the boxes or the recall. Per image,
+    ``detections`` are ``(N, 6)`` rows ``x1, y1, x2, y2, score, class`` of *every* class (as the
+    detector reports them, each box with its one best class) and ``ground_truths`` ``(M, >=4)``
+    boxes of ``target_class``. Each ground truth lands in exactly one bucket, tested in order over
+    every box given, whatever its score (the same boxes AP ranks):
+
+    * ``found``: a ``target_class`` box at IoU >= ``iou_threshold``;
+    * ``other_class``: only a box of another class there (the class decision lost it);
+    * ``poorly_placed``: a ``target_class`` box at IoU in [0.1, ``iou_threshold``) (the box lost it);
+    * ``missed``: nothing near it.
+
+    False positives are ``target_class`` boxes at ``score_threshold`` or above that
+    :func:`match` leaves unmatched: ``fp_on_object`` when they overlap a ground truth by at least
+    0.1 IoU (a second or misplaced box on a real object), ``fp_background`` otherwise. All counts
+    are totals over the images.
+    """
+    if len(detections) != len(ground_truths):
+        raise ValueError(f"{len(detections)} detection lists but {len(ground_truths)} ground-truth lists")
+    out = dict.fromkeys(("num_gt", "found", "other_class", "poorly_placed", "missed", "fp_on_object", "fp_background"), 0.0)
+    for dets, gts in zip(detections, ground_truths):
+        dets = np.asarray(dets, dtype=np.float64).reshape(-1, 6)
+        gts = np.asarray(gts, dtype=np.float64).reshape(-1, 4) if np.asarray(gts).size else np.zeros((0, 4))
+        ious = box_iou(dets[:, :4], gts[:, :4])  # (N, M)
+        own = dets[:, 5] == target_class
+        for j in range(len(gts)):
+            column = ious[:, j]
+            if (column[own] >= iou_threshold).any():
+                out["found"] += 1
+            elif (column[~own] >= iou_threshold).any():
+                out["other_class"] += 1
+            elif (column[own] >= NEAR_IOU).any():
+                out["poorly_placed"] += 1
+            else:
+                out["missed"] += 1
+        out["num_gt"] += len(gts)
+        candidates = dets[own & (dets[:, 4] >= score_threshold)]
+        candidates = candidates[np.argsort(-candidates[:, 4], kind="stable")]
+        overlap = box_iou(candidates[:, :4], gts[:, :4])
+        taken = np.zeros(len(gts), dtype=bool)
+        false_positive = np.ones(len(candidates), dtype=bool)
+        for i in range(len(candidates)):  # COCO's greedy matching, as in match()
+            free = np.where(taken, -1.0, overlap[i])
+            if len(free) and free.max() >= iou_threshold:
+                taken[int(free.argmax())] = True
+                false_positive[i] = False
+        near = (overlap.max(axis=1) >= NEAR_IOU) if len(gts) else np.zeros(len(candidates), dtype=bool)
+        near = near[false_positive]
+        out["fp_on_object"] += float(near.sum())
+        out["fp_background"] += float((~near).sum())
+    return out

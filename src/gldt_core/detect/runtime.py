@@ -156,9 +156,20 @@ class _OnnxDetector:
         self.iou_threshold = float(iou_threshold)
         return list(self.session.get_inputs())
 
-    def _read_classes(self) -> None:
-        """Class ids of the output channels (after the inputs were found usable)."""
+    def _read_classes(self, classes: Sequence[int] | None) -> None:
+        """Class ids of the output channels (after the inputs were found usable), and the channels
+        of the ``classes`` (MOT codes) the caller asks about; None asks about every class."""
         self.class_ids = _class_ids(self.card, _output_classes(self.session, self.model_path, self.card))
+        self.classes = None if classes is None else tuple(int(c) for c in classes)
+        self.class_channels: np.ndarray | None = None
+        if self.classes is not None:
+            known = [int(c) for c in self.class_ids]
+            unknown = [c for c in self.classes if c not in known]
+            if unknown or not self.classes:
+                raise DetectorConfigError(
+                    f"{self.model_path}: classes {list(self.classes)} asked for, but the model outputs classes {known} (MOT codes)"
+                )
+            self.class_channels = np.array([known.index(c) for c in self.classes], dtype=np.int64)
 
 
 class GlobalDetector(_OnnxDetector):
@@ -182,6 +193,7 @@ class GlobalDetector(_OnnxDetector):
         long_side: int | None = None,
         max_detections: int = 300,
         optimize_graph: bool = True,
+        classes: Sequence[int] | None = None,
     ):
         inputs = self._open(
             model_path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold, optimize_graph
@@ -201,7 +213,7 @@ class GlobalDetector(_OnnxDetector):
         self.long_side = int(long_side or self.card.get("runtime_long_side", max(size)))
         if self.long_side % self.multiple:
             raise DetectorConfigError(f"{self.model_path}: long_side {self.long_side} must be a multiple of {self.multiple}")
-        self._read_classes()
+        self._read_classes(classes)
         self.max_detections = int(max_detections)
 
     def input_size(self, frame_w: int, frame_h: int) -> tuple[int, int]:
@@ -260,6 +272,7 @@ class LocalDetector(_OnnxDetector):
         num_threads: int | None = None,
         iou_threshold: float = 0.5,
         max_detections_per_roi: int = 100,
+        classes: Sequence[int] | None = None,
     ):
         inputs = self._open(model_path, DEFAULT_LOCAL_MODEL, providers, num_threads, score_threshold, iou_threshold)
         if len(inputs) != 1:
@@ -271,7 +284,7 @@ class LocalDetector(_OnnxDetector):
             raise DetectorConfigError(f"{self.model_path}: input {inp.name!r} has shape {inp.shape}; expected (N, 3, S, S) with a fixed square S")
         self.input_name = inp.name
         self.input_side = int(h)
-        self._read_classes()
+        self._read_classes(classes)
         self.max_detections_per_roi = int(max_detections_per_roi)
 
     @staticmethod

@@ -50,7 +50,8 @@ def detect_global_prepared(
     (output,) = detector.session.run(None, feed)
     input_h, input_w = current_input.shape[:2]
     detections = decode_output(
-        output[0], detector.score_threshold, detector.iou_threshold, detector.max_detections, box_scale=(input_w, input_h)
+        output[0], detector.score_threshold, detector.iou_threshold, detector.max_detections, box_scale=(input_w, input_h),
+        channels=detector.class_channels,
     )
     detections = _drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
     if len(detections):
@@ -84,7 +85,8 @@ def detect_local_crops(
     for index, (out, mapping, roi) in enumerate(zip(output, mappings, rois)):
         side = detector.input_side
         detections = decode_output(
-            out, detector.score_threshold, detector.iou_threshold, detector.max_detections_per_roi, box_scale=(side, side)
+            out, detector.score_threshold, detector.iou_threshold, detector.max_detections_per_roi, box_scale=(side, side),
+            channels=detector.class_channels,
         )
         if not len(detections):
             continue

@@ -30,6 +30,8 @@ from torch.utils.data import Dataset
 
 from gldt_core.io.mot import read_mot
 
+from .paste import ObjectBank, paste_objects
+
 if TYPE_CHECKING:
     from gldt_core.sim.spec import SceneSpec
 
@@ -37,6 +39,21 @@ if TYPE_CHECKING:
 MOT_CLASS_TO_INDEX = {1: 0, 2: 1, 3: 2, 4: 2}
 CLASS_NAMES = ("drone", "bird", "airplane")
 PAD_VALUE = 114
+
+
+@dataclass(frozen=True)
+class CopyPaste:
+    """Copy-paste augmentation settings (see :mod:`.paste`): with ``probability`` a training sample
+    gets 1 to ``max_objects`` objects from ``bank`` pasted in."""
+
+    bank: ObjectBank
+    probability: float
+    max_objects: int
+
+    def apply(self, images: list[np.ndarray], boxes: np.ndarray, rng: np.random.Generator, scale: float) -> tuple[list[np.ndarray], np.ndarray]:
+        if self.probability <= 0 or rng.random() >= self.probability:
+            return images, boxes
+        return paste_objects(images, boxes, self.bank, rng, scale, count=int(rng.integers(1, self.max_objects + 1)))
 
 
 @dataclass
@@ -236,9 +253,19 @@ def _transform_boxes(boxes: np.ndarray, scale: float, x0: float, y0: float) -> n
 class GlobalPairDataset(Dataset):
     """Frame pairs for AM-YOLO. Training: consistent random crops; validation: whole frames letterboxed."""
 
-    def __init__(self, pairs: list[FramePair], size: tuple[int, int], train: bool, seed: int = 0, scale_range: tuple[float, float] = (0.5, 1.3), target_bias: float = 0.75):
+    def __init__(
+        self,
+        pairs: list[FramePair],
+        size: tuple[int, int],
+        train: bool,
+        seed: int = 0,
+        scale_range: tuple[float, float] = (0.5, 1.3),
+        target_bias: float = 0.75,
+        copy_paste: CopyPaste | None = None,
+    ):
         self.pairs, self.size, self.train = pairs, size, train
         self.seed, self.scale_range, self.target_bias = seed, scale_range, target_bias
+        self.copy_paste = copy_paste
         self.epoch = 0
 
     def __len__(self) -> int:
@@ -266,6 +293,8 @@ class GlobalPairDataset(Dataset):
             if rng.random() < 0.5:
                 images = [im[:, ::-1] for im in images]
                 boxes[:, [1, 3]] = out_w - boxes[:, [3, 1]]
+            if self.copy_paste is not None:
+                images, boxes = self.copy_paste.apply(images, boxes, rng, scale)
             images = photometric(images, rng)
         else:
             scale = min(out_w / w, out_h / h)
@@ -280,9 +309,19 @@ class GlobalPairDataset(Dataset):
 class LocalCropDataset(Dataset):
     """ROI windows for the local model: around targets (as the runtime places them) or random (hard negatives)."""
 
-    def __init__(self, pairs: list[FramePair], input_size: int, roi: int, train: bool, seed: int = 0, negative_fraction: float = 0.3):
+    def __init__(
+        self,
+        pairs: list[FramePair],
+        input_size: int,
+        roi: int,
+        train: bool,
+        seed: int = 0,
+        negative_fraction: float = 0.3,
+        copy_paste: CopyPaste | None = None,
+    ):
         self.pairs, self.input_size, self.roi, self.train = pairs, input_size, roi, train
         self.seed, self.negative_fraction = seed, negative_fraction
+        self.copy_paste = copy_paste
         self.epoch = 0
 
     def __len__(self) -> int:
@@ -313,6 +352,8 @@ class LocalCropDataset(Dataset):
             if rng.random() < 0.5:
                 image = image[:, ::-1]
                 boxes[:, [1, 3]] = self.input_size - boxes[:, [3, 1]]
+            if self.copy_paste is not None:
+                (image,), boxes = self.copy_paste.apply([image], boxes, rng, scale)
             image = photometric([image], rng)[0]
         boxes = clip_boxes(boxes, self.input_size, self.input_size)
         return to_tensor(image), torch.from_numpy(boxes).float()

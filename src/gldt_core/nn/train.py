@@ -29,9 +29,10 @@ from gldt_core.detect.halmstad_split import halmstad_split
 from gldt_core.detect.metrics import detection_summary
 from gldt_core.detect.postprocess import decode_output
 
-from .data import GlobalPairDataset, LocalCropDataset, collate_crops, collate_pairs, load_halmstad, load_synthetic
+from .data import CopyPaste, GlobalPairDataset, LocalCropDataset, collate_crops, collate_pairs, load_halmstad, load_synthetic
 from .loss import DetectionLoss
 from .models import Detector, ModelSpec
+from .paste import ObjectBank
 
 TASKS = ("global", "local")
 
@@ -62,6 +63,12 @@ DEFAULTS: dict[str, Any] = {
         "negative_fraction": 0.3,
         "val_max_images": 120,
         "load_workers": 0,  # processes decoding clips / rendering scenes when the cache is cold
+        # Copy-paste augmentation (gldt_core.nn.paste): the probability that a training sample gets
+        # objects cut from other training frames matted in, how many at most, and how many objects
+        # of each class the bank cuts. 0 turns it off (the models shipped before 2026-12-02).
+        "copy_paste": 0.0,
+        "copy_paste_max": 3,
+        "copy_paste_bank": 1500,
     },
     "train": {
         "epochs": 10,
@@ -94,15 +101,46 @@ def _merge(base: dict[str, Any], override: dict[str, Any], where: str = "") -> d
     return out
 
 
-def load_config(path: Path | str) -> dict[str, Any]:
-    """Read a training YAML and fill defaults; unknown keys are an error (typos must not be silent)."""
-    path = Path(path)
+#: A training config may name another (a path relative to itself) that it changes a few keys of.
+EXTENDS_KEY = "extends"
+
+
+def _overlay(base: dict[str, Any], override: dict[str, Any]) -> dict[str, Any]:
+    """``base`` with ``override``'s keys replaced, mappings merged key by key."""
+    out = copy.deepcopy(base)
+    for key, value in override.items():
+        out[key] = _overlay(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else copy.deepcopy(value)
+    return out
+
+
+def _read_config(path: Path, chain: tuple[Path, ...] = ()) -> dict[str, Any]:
+    """The raw mapping of a training YAML with its ``extends:`` chain resolved.
+
+    Why: a variant (another data mix, an augmentation switched on) then states only what it
+    changes, so it cannot silently drift from the config it is compared against.
+    """
     if not path.is_file():
-        raise FileNotFoundError(f"training config not found: {path}")
+        via = f" (extended by {chain[-1]})" if chain else ""
+        raise FileNotFoundError(f"training config not found: {path}{via}")
+    if path.resolve() in chain:
+        raise ValueError(f"{path}: 'extends' makes a cycle: {' -> '.join(str(p) for p in (*chain, path.resolve()))}")
     with path.open() as fh:
         raw = yaml.safe_load(fh) or {}
     if not isinstance(raw, dict):
         raise ValueError(f"{path}: top level must be a mapping")
+    base = raw.pop(EXTENDS_KEY, None)
+    if base is None:
+        return raw
+    if not isinstance(base, str):
+        raise ValueError(f"{path}: '{EXTENDS_KEY}' must be a path to another training config, got {base!r}")
+    return _overlay(_read_config(path.parent / base, (*chain, path.resolve())), raw)
+
+
+def load_config(path: Path | str) -> dict[str, Any]:
+    """Read a training YAML (following ``extends:``) and fill defaults; unknown keys are an error
+    (typos must not be silent)."""
+    path = Path(path)
+    raw = _read_config(path)
     config = _merge(DEFAULTS, raw)
     spec = ModelSpec.from_dict(config["model"])  # validate early
     multiple = spec.input_multiple
@@ -171,11 +209,12 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
     if not val_pairs:
         raise ValueError("no validation data: real_validation is false and synthetic_val_scenes is 0")
     w, h = data["input_size"]
+    copy_paste = _copy_paste(data, train_pairs, seed)
     if task == "global":
-        train_ds = GlobalPairDataset(train_pairs, (w, h), train=True, seed=seed)
+        train_ds = GlobalPairDataset(train_pairs, (w, h), train=True, seed=seed, copy_paste=copy_paste)
         val_ds = GlobalPairDataset(val_pairs, tuple(data["val_size"]), train=False, seed=seed)
     else:
-        train_ds = LocalCropDataset(train_pairs, w, data["roi"], train=True, seed=seed, negative_fraction=data["negative_fraction"])
+        train_ds = LocalCropDataset(train_pairs, w, data["roi"], train=True, seed=seed, negative_fraction=data["negative_fraction"], copy_paste=copy_paste)
         val_ds = LocalCropDataset(val_pairs, data["val_size"][0], data["val_roi"], train=False, seed=seed, negative_fraction=data["negative_fraction"])
     rng = np.random.default_rng(seed)
     n_val = min(len(val_ds), data["val_max_images"])
@@ -189,8 +228,23 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
         "synthetic_train_scenes": data["synthetic_scenes"],
         "synthetic_share": data["synthetic_share"],
         "val_pairs_used_per_epoch": n_val,
+        "copy_paste": None if copy_paste is None else {"probability": copy_paste.probability, "max_objects": copy_paste.max_objects, "bank_objects": len(copy_paste.bank)},
     }
     return train_ds, val_subset, info
+
+
+def _copy_paste(data: dict[str, Any], train_pairs: list, seed: int) -> CopyPaste | None:
+    """The copy-paste settings of ``data`` with an object bank cut from the training pairs only
+    (never from validation clips), or None when ``data.copy_paste`` is 0."""
+    probability = float(data["copy_paste"])
+    if not 0.0 <= probability <= 1.0:
+        raise ValueError(f"data.copy_paste must be a probability within [0, 1], got {data['copy_paste']!r}")
+    if probability == 0.0:
+        return None
+    max_objects, per_class = int(data["copy_paste_max"]), int(data["copy_paste_bank"])
+    if max_objects < 1 or per_class < 1:
+        raise ValueError(f"data.copy_paste_max and data.copy_paste_bank must be >= 1, got {max_objects} and {per_class}")
+    return CopyPaste(ObjectBank.from_pairs(train_pairs, per_class=per_class, seed=seed), probability, max_objects)
 
 
 def sample_weights(num_real: int, num_synthetic: int, synthetic_share: float | None) -> list[float] | None:

@@ -13,7 +13,7 @@ Example (every key shown with its default)::
       local_model: null
       score_threshold: 0.1    # null = the detector's own default (0.25)
       providers: [CPUExecutionProvider]
-      classes: [1]            # MOT class codes to track (1 drone, 2 bird, 3 airplane); null = all
+      classes: [1]            # MOT class codes to detect and track (1 drone, 2 bird, 3 airplane); null = all
       nms_iou: 0.5            # duplicate removal across overlapping ROIs
     tracker:
       name: jptrack           # or bytetrack
@@ -62,7 +62,10 @@ class DetectorSettings:
     """Which detector models to load and how to filter what they report.
 
     ``classes`` defaults to drones only (MOTChallenge code 1): birds and airplanes are the
-    classic false positives the detectors are trained to name, not targets to track.
+    classic false positives the detectors are trained to name, not targets to track. The
+    detectors are asked about these classes only: a box is a drone when its drone score passes,
+    even where the model scores a bird higher at the same place (see
+    :func:`gldt_core.detect.postprocess.decode_output`).
     """
 
     global_model: str | None = None

@@ -132,7 +132,8 @@ def build_detectors(config: PipelineConfig) -> tuple[GlobalDetectorLike, LocalDe
 
     from gldt_core import detect
 
-    kwargs: dict[str, Any] = {"providers": tuple(settings.providers)}
+    # The detectors are asked about the tracked classes only (see decode_output's ``channels``).
+    kwargs: dict[str, Any] = {"providers": tuple(settings.providers), "classes": settings.classes}
     if settings.score_threshold is not None:
         kwargs["score_threshold"] = settings.score_threshold
     global_detector = detect.GlobalDetector(model_path=settings.global_model, **kwargs)

@@ -57,7 +57,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "global_detector": (
         ParamSpec("model_path", "", "AM-YOLO ONNX file; empty = the model shipped with gldt_core"),
         _SCORE_THRESHOLD,
-        ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids passed to the tracker (1 drone, 2 bird, 3 airplane); empty = all"),
+        ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids to detect and pass to the tracker (1 drone, 2 bird, 3 airplane); the model is asked about these only; empty = all"),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers (CUDA, TensorRT on Jetson)"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
         ParamSpec("pair_queue_depth", 1, "Frame pairs kept while the detector runs; 1 = only the newest, so a slow detector skips pairs instead of falling behind", 1, 100),
@@ -66,7 +66,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "local_detector": (
         ParamSpec("model_path", "", "Local P2 ONNX file; empty = the model shipped with gldt_core"),
         _SCORE_THRESHOLD,
-        ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids passed to the tracker; empty = all"),
+        ParamSpec("classes", _CLASSES_DEFAULT, "Comma-separated class ids to detect and pass to the tracker; the model is asked about these only; empty = all"),
         ParamSpec("nms_iou", _DETECTOR_DEFAULTS.nms_iou, "IoU above which detections of overlapping ROIs are merged", 0.01, 1.0),
         ParamSpec("providers", "CPUExecutionProvider", "Comma-separated onnxruntime execution providers"),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
@@ -106,6 +106,8 @@ def detector_kwargs(node_param: Any) -> dict[str, Any]:
         "model_path": node_param("model_path") or None,
         "providers": tuple(p.strip() for p in node_param("providers").split(",") if p.strip()),
         "num_threads": int(node_param("num_threads")) or None,
+        # Ask the model about the tracked classes only, as gldt_core.pipeline.build_detectors does.
+        "classes": parse_classes(node_param("classes")),
     }
     if float(node_param("score_threshold")) >= 0:
         kwargs["score_threshold"] = float(node_param("score_threshold"))
