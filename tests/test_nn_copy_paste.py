@@ -160,7 +160,7 @@ def test_datasets_paste_when_asked_and_are_unchanged_when_not(task: str) -> None
     assert extra >= len(pairs)  # every sample got at least one pasted object (few are clipped away)
 
 
-def test_the_training_config_validates_copy_paste(tmp_path) -> None:
+def test_the_training_config_validates_copy_paste() -> None:
     pytest.importorskip("torch", reason="training is the optional `train` extra")
     from gldt_core.nn.train import _copy_paste
 

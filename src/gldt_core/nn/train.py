@@ -65,7 +65,7 @@ DEFAULTS: dict[str, Any] = {
         "load_workers": 0,  # processes decoding clips / rendering scenes when the cache is cold
         # Copy-paste augmentation (gldt_core.nn.paste): the probability that a training sample gets
         # objects cut from other training frames matted in, how many at most, and how many objects
-        # of each class the bank cuts. 0 turns it off (the models shipped before 2026-12-02).
+        # of each class the bank cuts. 0 turns it off, as in the shipped models' configs.
         "copy_paste": 0.0,
         "copy_paste_max": 3,
         "copy_paste_bank": 1500,
