@@ -197,17 +197,10 @@ def error_breakdown(
                 out["missed"] += 1
         out["num_gt"] += len(gts)
         candidates = dets[own & (dets[:, 4] >= score_threshold)]
+        # Sorted as match() sorts (stable, by score), so its flags line up with these rows.
         candidates = candidates[np.argsort(-candidates[:, 4], kind="stable")]
-        overlap = box_iou(candidates[:, :4], gts[:, :4])
-        taken = np.zeros(len(gts), dtype=bool)
-        false_positive = np.ones(len(candidates), dtype=bool)
-        for i in range(len(candidates)):  # COCO's greedy matching, as in match()
-            free = np.where(taken, -1.0, overlap[i])
-            if len(free) and free.max() >= iou_threshold:
-                taken[int(free.argmax())] = True
-                false_positive[i] = False
-        near = (overlap.max(axis=1) >= NEAR_IOU) if len(gts) else np.zeros(len(candidates), dtype=bool)
-        near = near[false_positive]
+        false_positive = ~match([candidates[:, :5]], [gts], iou_threshold).true_positive
+        near = box_iou(candidates[false_positive, :4], gts[:, :4]).max(axis=1, initial=0.0) >= NEAR_IOU
         out["fp_on_object"] += float(near.sum())
         out["fp_background"] += float((~near).sum())
     return out
