@@ -29,10 +29,19 @@ from gldt_ros.executor import (  # noqa: E402
 from gldt_ros.pipeline import default_params_file, node_environment, parse_args  # noqa: E402
 
 
-def test_rclpys_own_executor_is_the_default_and_the_events_one_is_there_to_opt_in() -> None:
+def test_the_events_executor_is_the_default_and_rclpys_python_one_is_there_to_opt_in() -> None:
     assert events_executor_available(), "the pinned ros-jazzy-rclpy 7.1.6 ships rclpy.experimental.EventsExecutor"
-    assert executor_kind({}) == SINGLE
-    assert executor_kind({EXECUTOR_ENV: ""}) == SINGLE
+    assert executor_kind({}) == EVENTS
+    assert executor_kind({EXECUTOR_ENV: ""}) == EVENTS
+
+
+def test_without_the_events_executor_the_default_falls_back_to_single(monkeypatch: pytest.MonkeyPatch) -> None:
+    import gldt_ros.executor as executor_module
+
+    monkeypatch.setattr(executor_module, "events_executor_available", lambda: False)
+    assert executor_module.executor_kind({}) == SINGLE
+    with pytest.raises(ValueError, match="no rclpy.experimental.EventsExecutor"):
+        executor_module.executor_kind({EXECUTOR_ENV: "events"})
 
 
 def test_the_environment_chooses_the_executor() -> None:
@@ -47,10 +56,10 @@ def test_an_unknown_executor_is_named_with_the_choices() -> None:
 
 def test_pipeline_passes_its_executor_to_the_node_processes(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(EXECUTOR_ENV, raising=False)
-    assert parse_args([]).executor == SINGLE
-    assert parse_args(["--executor", "events"]).executor == EVENTS
-    monkeypatch.setenv(EXECUTOR_ENV, "events")
-    assert parse_args([]).executor == EVENTS, "an exported choice is the default"
+    assert parse_args([]).executor == EVENTS
+    assert parse_args(["--executor", "single"]).executor == SINGLE
+    monkeypatch.setenv(EXECUTOR_ENV, "single")
+    assert parse_args([]).executor == SINGLE, "an exported choice is the default"
     assert node_environment(tune_malloc=False, executor=EVENTS)[EXECUTOR_ENV] == EVENTS
     monkeypatch.setenv(EXECUTOR_ENV, "bogus")
     with pytest.raises(SystemExit):

@@ -166,7 +166,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     A node that cannot start (missing model, bad parameter) logs one line and exits with 1. A
     node that ``publishes_frames`` (images, pairs, crops: messages of a MiB or more) swaps the
     graph's shipped DDS profile for its large-segment twin (:mod:`gldt_ros.dds_profile`). The
-    executor is ``$GLDT_EXECUTOR``'s (:mod:`gldt_ros.executor`; rclpy's ``rclpy.spin`` by default).
+    executor is ``$GLDT_EXECUTOR``'s (:mod:`gldt_ros.executor`; rclpy's events executor by default).
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException

@@ -91,7 +91,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument(
         "--executor", choices=EXECUTOR_CHOICES, default=None,
-        help=f"rclpy executor of the node processes and of the player (default: ${EXECUTOR_ENV}, else single; events is faster, see gldt_ros.executor; --in-process keeps a thread pool)",
+        help=f"rclpy executor of the node processes and of the player (default: ${EXECUTOR_ENV}, else events; single is rclpy's Python executors, see gldt_ros.executor; --in-process keeps a thread pool)",
     )
     args = parser.parse_args(argv)
     if args.executor is None:
