@@ -19,7 +19,7 @@ had ended, and the old executors were later caught hanging in teardown too
 (``Publisher.destroy``). Since every node's teardown is bounded (:mod:`gldt_ros.teardown_limit`:
 3 s, then ``_exit``), such a hang costs 3 s and is reported, not failed: 12 runs in a row of the
 replay, recording, fault, spare and link suites with events passed (30 tests each, 2026-12-02),
-and so did a fresh-clone ``make test``. Without ``rclpy.experimental.EventsExecutor`` (rclpy
+and so did 5 more with it as the default and a fresh-clone ``make test``. Without ``rclpy.experimental.EventsExecutor`` (rclpy
 older than 7.1.4) the default falls back to ``single``.
 
 The events executor is driven by :meth:`spin_once` with a timeout, never by its ``spin()``: in
