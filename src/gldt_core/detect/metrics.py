@@ -196,11 +196,11 @@ def error_breakdown(
             else:
                 out["missed"] += 1
         out["num_gt"] += len(gts)
-        candidates = dets[own & (dets[:, 4] >= score_threshold)]
+        rows = np.flatnonzero(own & (dets[:, 4] >= score_threshold))
         # Sorted as match() sorts (stable, by score), so its flags line up with these rows.
-        candidates = candidates[np.argsort(-candidates[:, 4], kind="stable")]
-        false_positive = ~match([candidates[:, :5]], [gts], iou_threshold).true_positive
-        near = box_iou(candidates[false_positive, :4], gts[:, :4]).max(axis=1, initial=0.0) >= NEAR_IOU
+        rows = rows[np.argsort(-dets[rows, 4], kind="stable")]
+        false_positive = ~match([dets[rows, :5]], [gts], iou_threshold).true_positive
+        near = ious[rows[false_positive]].max(axis=1, initial=0.0) >= NEAR_IOU
         out["fp_on_object"] += float(near.sum())
         out["fp_background"] += float((~near).sum())
     return out

@@ -41,7 +41,7 @@ EXECUTOR_ENV = "GLDT_EXECUTOR"
 EVENTS = "events"
 SINGLE = "single"
 EXECUTOR_CHOICES = (EVENTS, SINGLE)
-#: What a node spins when ``$GLDT_EXECUTOR`` is not set (module docstring).
+#: What a node spins when ``$GLDT_EXECUTOR`` is not set, where this rclpy has it (module docstring).
 DEFAULT_EXECUTOR = EVENTS
 #: Longest wait of one ``spin_once`` of the events executor, seconds.
 EVENTS_POLL_S = 0.2
