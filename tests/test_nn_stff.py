@@ -137,6 +137,17 @@ def test_window_partition_roundtrip_and_coordinates() -> None:
     assert coords.shape == (16, 2) and float(coords.min()) == -1.0 and float(coords.max()) == 1.0
 
 
+def test_window_partition_matches_the_six_dim_permute_of_the_paper_layout() -> None:
+    """The 4-D form (kept for onnxruntime's speed) orders tokens exactly as one 6-D permute does."""
+    b, c, h, w, s = 2, 3, 12, 20, 4
+    x = torch.randn(b, c, h, w)
+    reference = x.view(b, c, h // s, s, w // s, s).permute(0, 2, 4, 3, 5, 1).reshape(-1, s * s, c)
+    assert torch.equal(window_partition(x, s), reference)
+    tokens = torch.randn(b * (h // s) * (w // s), s * s, c)
+    back = tokens.view(b, h // s, w // s, s, s, c).permute(0, 5, 1, 3, 2, 4).reshape(b, c, h, w)
+    assert torch.equal(window_reverse(tokens, s, b, h, w), back)
+
+
 def test_bad_shapes_are_rejected() -> None:
     module = STFF(8, window=4)
     with pytest.raises(ValueError, match="not divisible by window 4"):
