@@ -26,3 +26,15 @@ def test_a_core_faster_than_the_camera_is_judged_at_the_cameras_rate() -> None:
 def test_a_slower_core_is_judged_at_its_own_share_of_the_cameras_rate() -> None:
     # 60 ms per frame keeps up with 16.7 fps: 0.556 of a 30 fps bag.
     assert sustained_rate(0.060, 30.0) == pytest.approx(1 / 1.8)
+
+
+def test_overhead_is_the_median_of_back_to_back_pairs() -> None:
+    from gldt_ros.bench_graph import paired_overhead
+
+    # A slow minute (second pair) slows both halves alike: its ratio is as good as the others'.
+    median, each = paired_overhead([0.030, 0.060, 0.031], [0.036, 0.069, 0.0341])
+    assert each == pytest.approx([0.20, 0.15, 0.10])
+    assert median == pytest.approx(0.15)
+    assert paired_overhead([0.05, 0.05], [0.06, 0.07])[0] == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="as many offline as lockstep"):
+        paired_overhead([0.05], [])

@@ -3,12 +3,14 @@
 Usage: ``python -m gldt_ros.bench_graph [--bag BAG] [--rate 1.0] [--in-process]`` (with the workspace on the
 paths, e.g. ``scripts/with_ros_env.sh python -m gldt_ros.bench_graph``).
 
-Three runs on the same bag, in one invocation so the machine's load is shared alike:
+Runs on the same bag, in one invocation so the machine's load is shared alike:
 1. offline: ``GLDTPipeline`` in this process reading the bag as ``gldt run --bag`` does - the
    core's own time per frame (the peer). It includes decoding each camera frame, because the
    graph decodes it too (in frame_pair_buffer); the time without decoding is printed beside it;
 2. lockstep replay through the five processes - time per frame, whose excess over (1) is what
-   the ROS transport and process hops cost;
+   the ROS transport and process hops cost. (1) and (2) alternate ``--repeats`` times and the
+   overhead is the median of each adjacent pair's ratio: this VM's speed drifts by 1.5-2x within
+   minutes, and a single pair measured the same code at +15 % and +64 % half an hour apart;
 3. free-running replay at the bag's rate x ``--rate`` - throughput, p50/p99 latency from
    publishing a camera frame to receiving its ``/gldt/tracks``, and frames left unanswered;
 4. start-up (issue #8, goal <= 5 s): from launching the node processes to every node ready and
@@ -59,6 +61,20 @@ def sustained_rate(core_seconds_per_frame: float, bag_fps: float) -> float:
     return min(1.0, 1.0 / (core_seconds_per_frame * bag_fps))
 
 
+def paired_overhead(offline_s: list[float], lockstep_s: list[float]) -> tuple[float, list[float]]:
+    """``(median, each)`` of ``lockstep / offline - 1`` over runs made back to back, pair by pair.
+
+    Why pairs: the two halves of a pair share the machine's speed of that minute; a ratio of the
+    medians would mix minutes again."""
+    if not offline_s or len(offline_s) != len(lockstep_s):
+        raise ValueError(f"need as many offline as lockstep runs, got {len(offline_s)} and {len(lockstep_s)}")
+    each = [lock / off - 1.0 for off, lock in zip(offline_s, lockstep_s)]
+    ordered = sorted(each)
+    middle = len(ordered) // 2
+    median = ordered[middle] if len(ordered) % 2 else 0.5 * (ordered[middle - 1] + ordered[middle])
+    return median, each
+
+
 def graph_run(bag: Path, extra: list[str]) -> str:
     pipeline = shutil.which("pipeline")
     if pipeline is None:
@@ -92,12 +108,27 @@ def main(argv: list[str] | None = None) -> int:
         "--in-process", action="store_true",
         help="run the graph's nodes in one process (pipeline --in-process), to tell the cost of the process hops from rclpy's own",
     )
+    parser.add_argument(
+        "--repeats", type=int, default=3,
+        help="offline and lockstep runs, alternated; the overhead is the median of the pairs' ratios (default 3)",
+    )
     args = parser.parse_args(argv)
+    if args.repeats < 1:
+        parser.error(f"--repeats must be >= 1, got {args.repeats}")
     mode = ["--in-process"] if args.in_process else []
 
-    offline_s, decode_s, frames, bag_fps = offline_seconds_per_frame(args.bag)
-    lockstep = graph_run(args.bag, ["--lockstep", *mode])
-    lockstep_s = float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames
+    offline_runs: list[float] = []
+    lockstep_runs: list[float] = []
+    decode_runs: list[float] = []
+    for _ in range(args.repeats):
+        offline_s, decode_s, frames, bag_fps = offline_seconds_per_frame(args.bag)
+        lockstep = graph_run(args.bag, ["--lockstep", *mode])
+        offline_runs.append(offline_s)
+        decode_runs.append(decode_s)
+        lockstep_runs.append(float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames)
+    overhead, overheads = paired_overhead(offline_runs, lockstep_runs)
+    overhead_no_decode, _ = paired_overhead([o - d for o, d in zip(offline_runs, decode_runs)], lockstep_runs)
+    offline_s, decode_s, lockstep_s = (sorted(runs)[len(runs) // 2] for runs in (offline_runs, decode_runs, lockstep_runs))
     free = graph_run(args.bag, ["--rate", str(args.rate), *mode])
     core_rate = sustained_rate(offline_s, bag_fps)
     # The latency goal holds "at the rate the core sustains": where the core is slower than the
@@ -106,15 +137,19 @@ def main(argv: list[str] | None = None) -> int:
     core_rate = math.floor(core_rate * 1000) / 1000
     core_rate_run = graph_run(args.bag, ["--rate", f"{core_rate:.3f}", *mode]) if core_rate < args.rate else None
     startup = startup_run(args.bag)
-    print(f"bench_graph: {args.bag.name}, {frames} frames, nodes {'in one process' if args.in_process else 'one process each'}")
+    print(
+        f"bench_graph: {args.bag.name}, {frames} frames, nodes {'in one process' if args.in_process else 'one process each'}, "
+        f"{args.repeats} offline/lockstep pair(s) (medians)"
+    )
     print(
         f"  offline core pipeline : {1000 * offline_s:7.1f} ms/frame ({1 / offline_s:5.1f} fps), "
         f"of which reading and decoding the bag {1000 * decode_s:.1f} ms"
     )
     print(f"  graph, lockstep       : {1000 * lockstep_s:7.1f} ms/frame ({1 / lockstep_s:5.1f} fps)")
     print(
-        f"  ROS overhead          : {100 * (lockstep_s / offline_s - 1):+7.1f} % of the core's time per frame (goal <= 20 %; "
-        f"{100 * (lockstep_s / (offline_s - decode_s) - 1):+.1f} % against the core without decoding)"
+        f"  ROS overhead          : {100 * overhead:+7.1f} % of the core's time per frame, median of the pairs "
+        f"({', '.join(f'{100 * o:+.1f}' for o in overheads)}; goal <= 20 %; "
+        f"{100 * overhead_no_decode:+.1f} % against the core without decoding)"
     )
     print(f"  free-running x{args.rate:g}    : {free.split('pipeline: ', 1)[1]}")
     if core_rate_run is not None:
