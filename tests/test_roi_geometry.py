@@ -10,6 +10,7 @@ import pytest
 from gldt_core.pipeline.roi import (
     RoiParams,
     clip_roi,
+    overlap_matrix,
     plan_rois,
     roi_of_each_box,
     roi_overlap,
@@ -218,3 +219,43 @@ def test_bad_boxes_raise():
         plan_rois(np.array([[math.nan, 0, 1, 1]]), [1], FRAME_1080P)
     with pytest.raises(ValueError, match="track ids"):
         plan_rois(np.array([box_at(5, 5)]), [1, 2], FRAME_1080P)
+
+
+def test_overlap_matrix_is_roi_overlap_of_every_pair():
+    rng = np.random.default_rng(5)
+    corners = rng.uniform(0, 400, size=(12, 2))
+    rois = np.concatenate([corners, corners + rng.uniform(0, 300, size=(12, 2))], axis=1)
+    rois[3] = [50, 50, 50, 80]  # empty: overlaps nothing
+    matrix = overlap_matrix(rois)
+    for a in range(len(rois)):
+        for b in range(len(rois)):
+            assert matrix[a, b] == pytest.approx(roi_overlap(rois[a], rois[b]), abs=1e-12)
+
+
+def test_expanded_windows_keep_their_targets_in_the_safe_zone_after_rounding():
+    rng = np.random.default_rng(12)
+    params = RoiParams()
+    for _ in range(50):
+        centre = rng.uniform([500, 300], [1400, 700])
+        boxes = np.array([box_at(*(centre + rng.uniform(-250, 250, size=2)), size=rng.uniform(8, 40)) for _ in range(3)])
+        layout = plan_rois(boxes, [1, 2, 3], FRAME_1080P, params, previous_groups=((1, 2, 3),))
+        assert len(layout) == 1
+        zone = safe_zone(layout.rois[0], params.tau_safe)
+        assert all(contains(zone, b) for b in boxes)
+
+
+def test_windows_clipped_onto_each_other_are_merged_not_cropped_twice():
+    # Four targets near the corners of a frame smaller than one window: one crop, not four copies.
+    small = (280, 280)
+    boxes = np.array([box_at(20, 20), box_at(260, 20), box_at(20, 260), box_at(260, 260)])
+    layout = plan_rois(boxes, [1, 2, 3, 4], small)
+    assert layout.rois.tolist() == [[0, 0, 280, 280]] and layout.groups == ((1, 2, 3, 4),)
+    # A 320x256 frame (thermal-camera size), targets 280 px apart: apart their windows would
+    # overlap 0.93 once shifted inside the frame, so they share one.
+    layout = plan_rois(np.array([box_at(20, 128), box_at(300, 128)]), [1, 2], (320, 256))
+    assert len(layout) == 1
+    # Near the right edge of a 1080p frame: no two windows overlap by more than tau_o.
+    layout = plan_rois(np.array([box_at(1605, 540), box_at(1910, 540)]), [1, 2], FRAME_1080P)
+    for a in range(len(layout)):
+        for b in range(a + 1, len(layout)):
+            assert roi_overlap(layout.rois[a], layout.rois[b]) <= RoiParams().tau_overlap

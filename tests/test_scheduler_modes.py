@@ -136,3 +136,36 @@ def test_state_counts_frames_and_reset_restarts():
 def test_bad_counters_are_rejected(field):
     with pytest.raises(ValueError, match=field):
         SchedulerConfig(**{field: 0})
+
+
+def test_a_diverged_prediction_is_dropped_and_ld_goes_on_for_the_others(caplog: pytest.LogCaptureFixture) -> None:
+    scheduler = ModeScheduler(SchedulerConfig(n_global=2, n_local=50, n_miss=5))
+    run(scheduler, 2)
+    good = np.array([[900.0, 500.0, 920.0, 520.0, 1]])
+    diverged = np.array([[np.nan, 500.0, 920.0, 520.0, 2]])
+    with caplog.at_level("WARNING", logger="gldt.scheduler"):
+        for _ in range(20):
+            plan = scheduler.plan_frame(0.0, (1920, 1080), np.vstack([good, diverged]))
+            scheduler.report_detections(plan, [1] * len(plan.rois))
+            assert plan.mode is Mode.LOCAL and plan.layout.groups == ((1,),)
+    assert "NaN or infinite" in caplog.text and "[2.0]" in caplog.text
+    assert scheduler.state.frames_in_mode == 20
+
+
+def test_only_diverged_predictions_do_not_start_ld() -> None:
+    scheduler = ModeScheduler(SchedulerConfig(n_global=2))
+    run(scheduler, 2)
+    plan = scheduler.plan_frame(0.0, (1920, 1080), np.array([[np.inf, 0.0, 10.0, 10.0, 1]]))
+    assert plan.mode is Mode.GLOBAL
+
+
+def test_a_failed_roi_plan_leaves_the_scheduler_as_it_was() -> None:
+    scheduler = ModeScheduler(SchedulerConfig(n_global=2))
+    run(scheduler, 2)
+    before = scheduler.state
+    duplicate_ids = np.array([[0.0, 0.0, 10.0, 10.0, 1], [50.0, 50.0, 60.0, 60.0, 1]])
+    with pytest.raises(ValueError, match="duplicate track ids"):
+        scheduler.plan_frame(0.0, (1920, 1080), duplicate_ids)
+    after = scheduler.state
+    assert (after.mode, after.frames_in_mode, after.frames_seen) == (before.mode, before.frames_in_mode, before.frames_seen)
+    assert scheduler.plan_frame(0.0, (1920, 1080), duplicate_ids[:1]).mode is Mode.LOCAL

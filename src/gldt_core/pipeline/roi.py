@@ -23,10 +23,18 @@ Conventions and decisions:
   group's spread is its largest pairwise distance.
 * Safe zone: the central rectangle with each side scaled by ``sqrt(tau_s)`` (so its area is
   ``tau_s`` of the ROI's). A window is made just large enough (never below ``roi_size``) that the
-  bounding box of its targets fits in its safe zone.
+  bounding box of its targets fits in its safe zone. Its edges are then rounded outwards to whole
+  pixels, so a window whose centre is not a whole pixel is ``roi_size + 1`` wide. Why not exactly
+  ``roi_size``: rounding the centre instead moves the crop by up to half a pixel, and on the
+  synthetic MOT-FLY-like test scene that alone moved GD+LD+JPTrack from 31.1 to 17.1 MOTA (150
+  frames, balanced pair): the local detector's boxes on 3-5 px drones depend on the crop's
+  sub-pixel placement, and the shipped layout is the one the results were measured with.
 * Frame edges: a window is shifted (not shrunk) to lie inside the frame, so a target at the edge
   still gets a full-size window; the safe zone then cannot be honoured on the edge side - there is
   nothing to see beyond the frame. A frame smaller than the window gives a window of frame size.
+  Overlaps for merging are taken between the windows as clipped, the crops the local detector
+  will actually see: shifting windows into a small frame, or near its edges, can pile them onto
+  each other, and merging before clipping left duplicate crops.
 """
 
 from __future__ import annotations
@@ -103,20 +111,24 @@ def roi_overlap(a: Sequence[float], b: Sequence[float]) -> float:
     return (ix * iy) / smaller if smaller > 0.0 else 0.0
 
 
+def overlap_matrix(rois: np.ndarray) -> np.ndarray:
+    """:func:`roi_overlap` of every pair of ``(R, 4)`` windows, as an ``(R, R)`` array."""
+    rois = np.asarray(rois, dtype=np.float64).reshape(-1, 4)
+    x1, y1, x2, y2 = rois.T
+    ix = np.minimum(x2[:, None], x2[None, :]) - np.maximum(x1[:, None], x1[None, :])
+    iy = np.minimum(y2[:, None], y2[None, :]) - np.maximum(y1[:, None], y1[None, :])
+    intersection = np.where((ix > 0.0) & (iy > 0.0), ix * iy, 0.0)
+    area = np.maximum(x2 - x1, 0.0) * np.maximum(y2 - y1, 0.0)
+    smaller = np.minimum(area[:, None], area[None, :])
+    return np.divide(intersection, smaller, out=np.zeros_like(intersection), where=smaller > 0.0)
+
+
 def safe_zone(roi: Sequence[float], tau_safe: float) -> np.ndarray:
     """Central rectangle of ``roi`` covering ``tau_safe`` of its area (each side scaled by sqrt)."""
     scale = math.sqrt(tau_safe)
     cx, cy = (roi[0] + roi[2]) * 0.5, (roi[1] + roi[3]) * 0.5
     half_w, half_h = (roi[2] - roi[0]) * 0.5 * scale, (roi[3] - roi[1]) * 0.5 * scale
     return np.array([cx - half_w, cy - half_h, cx + half_w, cy + half_h], dtype=np.float64)
-
-
-def group_spread(centres: np.ndarray) -> float:
-    """Largest pairwise distance between centres (0 for fewer than two)."""
-    if len(centres) < 2:
-        return 0.0
-    diff = centres[:, None, :] - centres[None, :, :]
-    return float(np.sqrt((diff**2).sum(axis=2)).max())
 
 
 def roi_for_boxes(boxes: np.ndarray, params: RoiParams) -> np.ndarray:
@@ -231,33 +243,44 @@ def plan_rois(
         split.extend(_split_until_within(group, centre_of, params.tau_distance))
     groups = split
 
-    # (3) merge overlapping windows (greedy, most-overlapping pair first, until stable).
+    # (3) merge overlapping windows (greedy, most-overlapping pair first, until stable), compared
+    # as clipped to the frame: those are the crops, and clipping can pile windows onto each other.
+    index_of = {i: k for k, i in enumerate(ids)}
+    centres = np.array([centre_of[i] for i in ids])
+    distance = np.sqrt(((centres[:, None, :] - centres[None, :, :]) ** 2).sum(axis=2))
+
     def window(group: list[int]) -> np.ndarray:
-        return roi_for_boxes(np.array([box_of[i] for i in group]), params)
+        return clip_roi(roi_for_boxes(np.array([box_of[i] for i in group]), params), frame_size)
+
+    def spread(group: list[int]) -> float:
+        members = [index_of[i] for i in group]
+        return float(distance[np.ix_(members, members)].max())
 
     windows = [window(g) for g in groups]
-    while True:
-        best: tuple[float, int, int] | None = None
-        for a in range(len(groups)):
-            for b in range(a + 1, len(groups)):
-                overlap = roi_overlap(windows[a], windows[b])
-                if overlap <= params.tau_overlap:
-                    continue
-                merged = groups[a] + groups[b]
-                if group_spread(np.array([centre_of[i] for i in merged])) > params.tau_distance:
-                    continue
-                if best is None or overlap > best[0]:
-                    best = (overlap, a, b)
+    spreads = [spread(g) for g in groups]
+    while len(groups) > 1:
+        overlap = np.triu(overlap_matrix(np.array(windows, dtype=np.float64)), k=1)
+        candidates = np.flatnonzero(overlap > params.tau_overlap)
+        # Most overlapping pair first; equal overlaps in (a, b) order, as a double loop finds them.
+        candidates = candidates[np.argsort(-overlap.flat[candidates], kind="stable")]
+        best: tuple[int, int] | None = None
+        for flat in candidates:
+            a, b = divmod(int(flat), len(groups))
+            between = distance[np.ix_([index_of[i] for i in groups[a]], [index_of[i] for i in groups[b]])].max()
+            if max(spreads[a], spreads[b], float(between)) <= params.tau_distance:
+                best = (a, b)
+                break
         if best is None:
             break
-        _, a, b = best
+        a, b = best
         groups[a] = groups[a] + groups[b]
         windows[a] = window(groups[a])
-        del groups[b], windows[b]
+        spreads[a] = spread(groups[a])
+        del groups[b], windows[b], spreads[b]
 
-    # (4) clip to the frame; order windows by their smallest id so the layout is deterministic.
+    # (4) order windows by their smallest id so the layout is deterministic.
     order = sorted(range(len(groups)), key=lambda k: min(groups[k]))
-    rois = np.array([clip_roi(windows[k], frame_size) for k in order], dtype=np.int64).reshape(-1, 4)
+    rois = np.array([windows[k] for k in order], dtype=np.int64).reshape(-1, 4)
     return RoiLayout(rois=rois, groups=tuple(tuple(sorted(groups[k])) for k in order))
 
 

@@ -23,16 +23,21 @@ Reading of the paper's counters (documented decisions):
   one or two missed detections of a small target, short enough that a lost target costs well
   under a second before the global search resumes.
 * An LD frame whose report never arrives (a dropped message in ROS) does not count as a miss.
+* A prediction with a NaN or infinite coordinate or id is dropped with a warning before the
+  mode is decided: one diverged track must not stop LD for the others, nor switch to LD alone.
 """
 
 from __future__ import annotations
 
 import enum
+import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from gldt_core.pipeline.roi import EMPTY_LAYOUT, RoiLayout, RoiParams, plan_rois
+
+LOG = logging.getLogger("gldt.scheduler")
 
 #: Table I.
 DEFAULT_N_GLOBAL = 30
@@ -148,26 +153,39 @@ class ModeScheduler:
         ``stamp`` of the *stable* (confirmed) tracks only; ``frame_size``: ``(width, height)``.
         """
         predictions = np.asarray(predictions, dtype=np.float64).reshape(-1, 5)
+        finite = np.isfinite(predictions).all(axis=1)
+        if not finite.all():
+            LOG.warning(
+                "frame %d: dropped %d prediction(s) with NaN or infinite values (track ids %s)",
+                self._frames_seen, int((~finite).sum()), predictions[~finite, 4].tolist(),
+            )
+            predictions = predictions[finite]
         cfg = self.config
-        if self._mode is Mode.GLOBAL:
+        mode, reason = self._mode, None
+        if mode is Mode.GLOBAL:
             if cfg.local_enabled and self._frames_in_mode >= cfg.n_global and len(predictions):
-                self._switch(Mode.LOCAL, f"{len(predictions)} stable track(s) after {cfg.n_global} GD frames")
-        else:
-            if self._frames_in_mode >= cfg.n_local:
-                self._switch(Mode.GLOBAL, f"LD ran {cfg.n_local} frames")
-            elif self._misses >= cfg.n_miss:
-                self._switch(Mode.GLOBAL, f"no detection in any ROI for {cfg.n_miss} frames")
-            elif len(predictions) == 0:
-                self._switch(Mode.GLOBAL, "no stable track left to look at")
+                mode, reason = Mode.LOCAL, f"{len(predictions)} stable track(s) after {cfg.n_global} GD frames"
+        elif self._frames_in_mode >= cfg.n_local:
+            mode, reason = Mode.GLOBAL, f"LD ran {cfg.n_local} frames"
+        elif self._misses >= cfg.n_miss:
+            mode, reason = Mode.GLOBAL, f"no detection in any ROI for {cfg.n_miss} frames"
+        elif len(predictions) == 0:
+            mode, reason = Mode.GLOBAL, "no stable track left to look at"
 
-        if self._mode is Mode.LOCAL:
-            self._layout = plan_rois(
+        layout = EMPTY_LAYOUT
+        if mode is Mode.LOCAL:
+            # Planned before any state changes, so a plan_rois error leaves the scheduler as it was.
+            layout = plan_rois(
                 predictions[:, :4],
                 predictions[:, 4].astype(np.int64),
                 frame_size,
                 cfg.roi,
-                previous_groups=self._layout.groups,
+                previous_groups=self._layout.groups if reason is None else (),
             )
+        if reason is not None:
+            self._switch(mode, reason)
+        if mode is Mode.LOCAL:
+            self._layout = layout
         else:
             self._global_frames += 1
         plan = FramePlan(

@@ -37,7 +37,6 @@ from gldt_core.track.geometry import (
     validate_detections,
     validate_time,
 )
-from gldt_core.track.jcma import FORBIDDEN
 from gldt_core.track.state import (
     Track,
     TrackState,
@@ -48,16 +47,33 @@ from gldt_core.track.state import (
 )
 
 OUTPUT_STATES = (TrackState.CONFIRMED, TrackState.RECOVERED)
+#: Tolerance of the lost-track windows, against floating-point time differences.
+TIME_SLACK_S = 1e-9
 #: Up to this many detections, relative positions are computed on Python floats.
 SMALL_REL_ROWS = 32
 
 
-def assign(cost: np.ndarray, allowed: np.ndarray) -> list[tuple[int, int]]:
-    """Minimum-cost one-to-one matching restricted to ``allowed`` pairs."""
+def assign(cost: np.ndarray, allowed: np.ndarray, limit: float) -> list[tuple[int, int]]:
+    """Minimum-cost one-to-one matching of ``allowed`` pairs, where leaving a row or a column
+    unmatched costs ``limit / 2`` (``allowed`` pairs should cost at most ``limit``).
+
+    This is what ByteTrack's reference ``lap.lapjv(cost, extend_cost=True, cost_limit=thresh)``
+    solves. A plain assignment over the allowed pairs would instead match as many pairs as it can
+    before it looks at cost: with two tracks side by side, one of them missed and a new object
+    beside the other, it hands the present track the newcomer and the missed track the present
+    track's detection, swapping their ids. Here keeping the good pair (cost c) and leaving the
+    other two unmatched (limit) beats the swap whenever the swap costs more.
+
+    How, without lapjv's doubled matrix: a matching of k pairs costs ``sum(c) + (n + m - 2k) *
+    limit / 2``, that is ``sum(c - limit)`` plus a constant. So each allowed pair gets ``c - limit``
+    (<= 0) and each forbidden one 0, and the rectangular solver's full assignment, minus its
+    forbidden pairs, is the optimal matching: padding a matching with zero-cost pairs is free.
+    A pair at exactly the limit gets a hair below 0, so it is matched rather than left to chance.
+    """
     if cost.size == 0 or not allowed.any():
         return []
-    masked = np.where(allowed, cost, FORBIDDEN)
-    rows, cols = linear_sum_assignment(masked)
+    gain = np.where(allowed, cost - (float(limit) + 1e-9), 0.0)
+    rows, cols = linear_sum_assignment(gain)
     return [(int(r), int(c)) for r, c in zip(rows, cols) if allowed[r, c]]
 
 
@@ -87,8 +103,10 @@ class MultiStageTracker:
         self._t_high = t_high
         self._t_low = t_low
         self._new_thresh = new_track_thresh
-        self._window_s = jcma_window_s
-        self._memory_s = max(memory_s, jcma_window_s)
+        # A nanosecond of slack: a gap of exactly 30 frames at 30 fps is 1.0 s, but t = f / 30
+        # makes (f + 30) / 30 - f / 30 land a rounding error above or below it depending on f.
+        self._window_s = jcma_window_s + TIME_SLACK_S
+        self._memory_s = max(memory_s, jcma_window_s) + TIME_SLACK_S
         self._ref_fps = ref_fps
         self._history_len = history_len
         self._image_size = (float(image_size[0]), float(image_size[1]))
@@ -176,13 +194,13 @@ class MultiStageTracker:
 
         # Stage 1: high-score detections vs active and recently lost tracks.
         pool = active + [tr for tr in lost if t - tr.last_update_t <= self._window_s]
-        cost, allowed = self._pair_cost(self.STAGE_HIGH, pool, dets, high, t)
-        rest_pool, rest_high = apply(pool, high, assign(cost, allowed), None)
+        cost, allowed, limit = self._pair_cost(self.STAGE_HIGH, pool, dets, high, t)
+        rest_pool, rest_high = apply(pool, high, assign(cost, allowed, limit), None)
 
         # Stage 2: remaining active tracks vs low-score detections.
         rest_active = [tr for tr in rest_pool if tr.state in OUTPUT_STATES]
-        cost, allowed = self._pair_cost(self.STAGE_LOW, rest_active, dets, low, t)
-        still_active, rest_low = apply(rest_active, low, assign(cost, allowed), None)
+        cost, allowed, limit = self._pair_cost(self.STAGE_LOW, rest_active, dets, low, t)
+        still_active, rest_low = apply(rest_active, low, assign(cost, allowed, limit), None)
         for tr in still_active:
             tr.mark_lost()
 
@@ -192,8 +210,8 @@ class MultiStageTracker:
         rest_high, rest_low = self._recover(lost_now, dets, rest_high, rest_low, t, rel, updated)
 
         # Tentative tracks vs the remaining high-score detections (ByteTrack's unconfirmed step).
-        cost, allowed = self._pair_cost(self.STAGE_TENTATIVE, tentative, dets, rest_high, t)
-        dead_tentative, rest_high = apply(tentative, rest_high, assign(cost, allowed), TrackState.CONFIRMED)
+        cost, allowed, limit = self._pair_cost(self.STAGE_TENTATIVE, tentative, dets, rest_high, t)
+        dead_tentative, rest_high = apply(tentative, rest_high, assign(cost, allowed, limit), TrackState.CONFIRMED)
         dead_ids = {id(tr) for tr in dead_tentative}
 
         # New tracks from the remaining confident detections.
@@ -234,8 +252,9 @@ class MultiStageTracker:
     # --- hooks ------------------------------------------------------------------------------
     def _pair_cost(
         self, stage: str, tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, t: float
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """Cost ``(len(tracks), len(det_idx))`` and the mask of pairs allowed to match."""
+    ) -> tuple[np.ndarray, np.ndarray, float]:
+        """Cost ``(len(tracks), len(det_idx))``, the mask of pairs allowed to match and the stage's
+        cost limit (see :func:`assign`)."""
         raise NotImplementedError
 
     def _recover(
@@ -292,12 +311,13 @@ class MultiStageTracker:
 
 def iou_pair_cost(
     tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, thresh: float, fuse_score: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """ByteTrack's cost: ``1 - IoU`` (times the detection score when fused), allowed if <= thresh."""
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """ByteTrack's cost: ``1 - IoU`` (times the detection score when fused), allowed if <= thresh,
+    with ``thresh`` as the limit."""
     if len(tracks) == 0 or len(det_idx) == 0:
-        return np.zeros((len(tracks), len(det_idx))), np.zeros((len(tracks), len(det_idx)), dtype=bool)
+        return np.zeros((len(tracks), len(det_idx))), np.zeros((len(tracks), len(det_idx)), dtype=bool), thresh
     boxes = boxes_xyxy(list(tracks))
     sub = dets[det_idx]
     iou = iou_xyxy(boxes, sub[:, :4])
     cost = 1.0 - iou * sub[None, :, 4] if fuse_score else 1.0 - iou
-    return cost, cost <= thresh
+    return cost, cost <= thresh, thresh

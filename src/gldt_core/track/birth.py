@@ -72,7 +72,9 @@ class LowScoreBirth:
             offset = _centre(previous)[:, None, :] - _centre(boxes)[None, :, :]
             distance = np.hypot(offset[..., 0], offset[..., 1])
             gate = GATE_DIAGONALS * np.hypot(previous[:, 2] - previous[:, 0], previous[:, 3] - previous[:, 1]) + GATE_MIN_PX
-            for chain_index, column in assign(distance, distance <= gate[:, None]):
+            # Distances in units of each chain's gate, so one limit (1) serves every row.
+            relative = distance / gate[:, None]
+            for chain_index, column in assign(relative, relative <= 1.0, 1.0):
                 used.add(column)
                 chain = Candidate(boxes[column].copy(), self.candidates[chain_index].frames + 1)
                 if chain.frames >= self.frames:

@@ -52,7 +52,7 @@ class ByteTrack(MultiStageTracker):
 
     def _pair_cost(
         self, stage: str, tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, t: float
-    ) -> tuple[np.ndarray, np.ndarray]:
+    ) -> tuple[np.ndarray, np.ndarray, float]:
         c = self.config
         if stage == self.STAGE_HIGH:
             return iou_pair_cost(tracks, dets, det_idx, c.match_thresh, c.fuse_score)

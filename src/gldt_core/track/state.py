@@ -135,9 +135,16 @@ class Track:
         self.frames_since_update += 1
 
     def mark_lost(self) -> None:
+        """Lost: the box keeps moving with the filter's velocity but stops growing or shrinking.
+
+        Why freeze the size: a few pixels of size jitter on a 6 px drone leave the filter with a
+        size velocity that, coasted for a second, collapses the box or inflates it, and the
+        coasted box is what stage 1, PMR's pre-gate and the ROIs look at (ByteTrack zeroes the
+        height velocity of lost tracks for the same reason; BoT-SORT both)."""
         if self.state is not TrackState.LOST:
             self.state = TrackState.LOST
             self.lost_since_t = self.last_update_t
+            self.kf.mean[6:8] = 0.0
 
     def _record(self, t: float, rel_xy: tuple[float, float]) -> None:
         cx, cy, w, h, vx, vy = self.kf.mean[:6].tolist()
