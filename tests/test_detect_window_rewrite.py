@@ -95,7 +95,7 @@ def test_rewrite_keeps_tokens_and_round_trip_identical_at_every_size() -> None:
         tokens_after, y_after = _run(rewritten, x)
         assert np.array_equal(tokens_after, tokens_before)
         assert np.array_equal(y_after, x) and np.array_equal(y_before, x)
-        # Token 0 of window 0 is the first row of the top-left window, channel by channel.
+        # Token 1 of window 0 is the second pixel of the top-left window's first row.
         assert np.array_equal(tokens_after[0, 1], x[0, :, 0, 1])
 
 
@@ -149,3 +149,62 @@ def test_cli_rejects_a_checkpoint_and_a_missing_model(tmp_path: Path) -> None:
     assert result.returncode != 0 and "rewrites an exported .onnx" in result.stderr
     result = gldt(str(tmp_path / "missing.onnx"), "--rewrite-windows", "--out", str(tmp_path / "x.onnx"))
     assert result.returncode != 0 and "model not found" in result.stderr and "missing.onnx" in result.stderr
+
+
+def test_static_shapes_and_shared_reshapes_are_handled() -> None:
+    """A shape given as an initializer and a 6-D Reshape read by a second node too: the same
+    outputs, and the shared Reshape stays."""
+    shape6 = [1, 2, 2, WINDOW, 3, WINDOW]
+    nodes = [
+        helper.make_node("Reshape", ["x", "shape6"], ["x6"]),
+        helper.make_node("Transpose", ["x6"], ["t6"], name="cut", perm=list(PARTITION_PERM)),
+        helper.make_node("Identity", ["x6"], ["x6_copy"]),  # a second reader of the 6-D view
+        helper.make_node("Reshape", ["t6", "back6"], ["b6"]),
+        helper.make_node("Transpose", ["b6"], ["y6"], name="paste", perm=list(REVERSE_PERM)),
+    ]
+    graph = helper.make_graph(
+        nodes,
+        "static",
+        [helper.make_tensor_value_info("x", TensorProto.FLOAT, [1, 2, 2 * WINDOW, 3 * WINDOW])],
+        [
+            helper.make_tensor_value_info("y6", TensorProto.FLOAT, shape6),
+            helper.make_tensor_value_info("x6_copy", TensorProto.FLOAT, shape6),
+            helper.make_tensor_value_info("t6", TensorProto.FLOAT, [1, 2, 3, WINDOW, WINDOW, 2]),
+        ],
+        initializer=[
+            helper.make_tensor("shape6", TensorProto.INT64, [6], shape6),
+            helper.make_tensor("back6", TensorProto.INT64, [6], [1, 2, 3, WINDOW, WINDOW, 2]),
+        ],
+    )
+    original = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+    original.ir_version = 8
+    rewritten = onnx.ModelProto()
+    rewritten.CopyFrom(original)
+    assert rewrite_window_transposes(rewritten) == 2
+    onnx.checker.check_model(rewritten)
+    assert any(node.output[0] == "x6" for node in rewritten.graph.node)  # still read by Identity
+    assert not any(node.output[0] == "b6" and node.op_type == "Reshape" for node in rewritten.graph.node)
+    x = np.random.default_rng(1).standard_normal((1, 2, 2 * WINDOW, 3 * WINDOW)).astype(np.float32)
+    before = ort.InferenceSession(original.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, {"x": x})
+    after = ort.InferenceSession(rewritten.SerializeToString(), providers=["CPUExecutionProvider"]).run(None, {"x": x})
+    for a, b in zip(before, after):
+        assert np.array_equal(a, b)
+
+
+def test_nan_where_the_original_had_numbers_is_an_infinite_difference(tmp_path: Path) -> None:
+    def model(op: str) -> Path:
+        nodes = [helper.make_node("Sub", ["x", "x"], ["zero"]), helper.make_node(op, ["zero", "zero"], ["y"])]
+        graph = helper.make_graph(
+            nodes, op,
+            [helper.make_tensor_value_info("x", TensorProto.FLOAT, ["n", "c", "h", "w"])],
+            [helper.make_tensor_value_info("y", TensorProto.FLOAT, ["n", "c", "h", "w"])],
+        )
+        proto = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
+        proto.ir_version = 8
+        path = tmp_path / f"{op}.onnx"
+        onnx.save(proto, str(path))
+        return path
+
+    zeros, nans = model("Add"), model("Div")  # 0 + 0 against 0 / 0
+    assert window_rewrite.compare_models(zeros, nans, [(4, 4)]) == float("inf")
+    assert window_rewrite.compare_models(nans, nans, [(4, 4)]) == 0.0

@@ -168,4 +168,8 @@ def test_a_failed_roi_plan_leaves_the_scheduler_as_it_was() -> None:
         scheduler.plan_frame(0.0, (1920, 1080), duplicate_ids)
     after = scheduler.state
     assert (after.mode, after.frames_in_mode, after.frames_seen) == (before.mode, before.frames_in_mode, before.frames_seen)
+    with pytest.raises(TypeError):
+        scheduler.plan_frame(None, (1920, 1080), duplicate_ids[:1])  # a bad stamp, same promise
+    after = scheduler.state
+    assert (after.mode, after.frames_in_mode, after.frames_seen) == (before.mode, before.frames_in_mode, before.frames_seen)
     assert scheduler.plan_frame(0.0, (1920, 1080), duplicate_ids[:1]).mode is Mode.LOCAL

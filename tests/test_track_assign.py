@@ -58,14 +58,19 @@ def test_pairs_without_rivals_are_matched_directly_even_at_the_limit() -> None:
     assert assign(np.zeros((0, 3)), np.zeros((0, 3), dtype=bool), 0.7) == []
 
 
-@pytest.mark.parametrize("tracker", [JPTrack, ByteTrack])
-def test_side_by_side_targets_keep_their_ids_when_one_is_missed_beside_a_newcomer(tracker) -> None:
+@pytest.mark.parametrize(
+    "tracker, size, gap",
+    # JPTrack: 10 px drones edge to edge. ByteTrack matches on IoU only, so its pair overlaps
+    # (20 px boxes 12 px apart), or the swap would never be allowed and the test could not fail.
+    [(JPTrack, 10, 10), (ByteTrack, 20, 12)],
+)
+def test_side_by_side_targets_keep_their_ids_when_one_is_missed_beside_a_newcomer(tracker, size: int, gap: int) -> None:
     tr = tracker()
     for frame in range(21):
         xa = 100 + 2 * frame
-        dets = [[xa, 200, xa + 10, 210, 0.9], [xa + 10, 200, xa + 20, 210, 0.9]]
-        if frame == 20:  # B missed; a new object appears 10 px left of A
-            dets = [[xa, 200, xa + 10, 210, 0.9], [xa - 10, 200, xa, 210, 0.9]]
+        dets = [[xa, 200, xa + size, 200 + size, 0.9], [xa + gap, 200, xa + gap + size, 200 + size, 0.9]]
+        if frame == 20:  # B missed; a new object appears as far left of A as B was right of it
+            dets = [[xa, 200, xa + size, 200 + size, 0.9], [xa - gap, 200, xa - gap + size, 200 + size, 0.9]]
         out = tr.update(np.array(dets, dtype=float), frame / 30)
         if frame == 19:
             ids_before = {int(row[4]): row[0] for row in out}

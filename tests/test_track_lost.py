@@ -50,18 +50,20 @@ def test_pmr_brings_back_a_short_track_after_more_than_a_second(hits: int) -> No
     assert shown and set(shown) == {1}, shown
 
 
-def test_settled_history_drops_the_first_updates_only_while_they_are_in_the_deque() -> None:
-    tr = JPTrack()
-    for frame in range(40):
-        tr.update(np.array([[100.0 + frame, 100, 110 + frame, 110, 0.9]]), frame / 30)
-    (track,) = tr.tracks
-    young = JPTrack()
-    young.update(np.array([[0.0, 0, 10, 10, 0.9]]), 0.0)
-    young.update(np.array([[1.0, 0, 11, 10, 0.9]]), 1 / 30)
-    (newborn,) = young.tracks
-    assert len(settled_history(newborn)) == 1  # never empty
-    full = track.history_array()
-    if track.hits - len(full) >= PMR_SETTLING_HITS:  # the deque already forgot the first updates
-        assert np.array_equal(settled_history(track), full)
-    else:
-        assert np.array_equal(settled_history(track), full[PMR_SETTLING_HITS - (track.hits - len(full)):])
+def test_settled_history_drops_the_first_three_updates_only_while_they_are_in_the_deque() -> None:
+    def track_after(updates: int):
+        tr = JPTrack()  # history_len 30
+        for frame in range(updates):
+            tr.update(np.array([[100.0 + frame, 100, 110 + frame, 110, 0.9]]), frame / 30)
+        (track,) = tr.tracks
+        return track
+
+    assert PMR_SETTLING_HITS == 3
+    young = track_after(10)
+    assert np.array_equal(settled_history(young), young.history_array()[3:])
+    rolled = track_after(31)  # the deque already forgot the birth sample: two unsettled are left
+    assert np.array_equal(settled_history(rolled), rolled.history_array()[2:])
+    old = track_after(40)
+    assert np.array_equal(settled_history(old), old.history_array())
+    newborn = track_after(2)
+    assert len(settled_history(newborn)) == 1  # never empty: the newest sample stays

@@ -10,8 +10,10 @@ the attention it feeds. The same permutation is an NHWC transpose plus a swap of
 The shipped models were trained, and their checkpoints are not in the repo, so instead of
 re-exporting from torch this rewrites the graph itself: each matched ``Transpose`` is replaced by
 the 4-D chain, and the shapes it needs are gathered from the original ``Reshape``'s own shape
-input, so dynamic input sizes keep working. :func:`rewrite_model_file` then runs the old and the
-new graph on the same inputs and refuses to write a model whose outputs differ.
+input, so dynamic input sizes keep working. That assumes the shape entries are the actual sizes
+(no ``0`` = "copy" and no ``-1`` = "infer"), as torch's exporter writes them for these windows;
+:func:`rewrite_model_file` runs the old and the new graph on the same inputs and refuses to write
+a model whose outputs differ or that fails to run.
 
 Needs the ``onnx`` package (the ``test``/``train`` extras), not torch; the run time never calls it.
 """
@@ -20,6 +22,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -119,7 +122,7 @@ def rewrite_window_transposes(model: Any) -> int:
         if source is None or source.op_type != "Reshape":
             rewritten.append(node)
             continue
-        build = _Builder(node.name or node.output[0])
+        build = _Builder(node.output[0])  # output names are unique in a graph; node names need not be
         data, shape6 = source.input[0], source.input[1]
         chain = _partition_chain if perm == PARTITION_PERM else _reverse_chain
         chain(build, data, shape6, node.output[0])
@@ -147,7 +150,8 @@ def _random_feeds(session: Any, sizes: list[tuple[int, int]], seed: int) -> list
 
 
 def compare_models(original: Path | str, rewritten: Path | str, sizes: list[tuple[int, int]], seed: int = 0) -> float:
-    """Max absolute output difference of two ONNX models on the same random inputs of each size."""
+    """Max absolute output difference of two ONNX models on the same random inputs of each size
+    (NaN in the same places counts as equal; NaN in different places as an infinite difference)."""
     import onnxruntime as ort
 
     sessions = [ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]) for path in (original, rewritten)]
@@ -157,7 +161,10 @@ def compare_models(original: Path | str, rewritten: Path | str, sizes: list[tupl
         for a, b in zip(before, after):
             if a.shape != b.shape:
                 raise ValueError(f"rewritten model changed an output shape: {a.shape} -> {b.shape}")
-            worst = max(worst, float(np.abs(a - b).max(initial=0.0)))
+            if not np.array_equal(np.isnan(a), np.isnan(b)):
+                return math.inf  # NaN where the original had a number, or the other way round
+            finite = ~np.isnan(a)
+            worst = max(worst, float(np.abs(a[finite] - b[finite]).max(initial=0.0)))
     return worst
 
 

@@ -95,9 +95,9 @@ def accepts_keyword(function: Any, name: str) -> bool:
 def build_tracker(config: PipelineConfig, image_size: tuple[int, int] | None = None) -> TrackerLike:
     """The tracker the config names (JPTrack or ByteTrack), built from its params.
 
-    ``image_size`` (width, height) gives the trackers the frame's size, for JCMA's relative
-    positions (its distance cost is normalised by box size, eq. 12, not by the frame); unknown
-    parameter names are refused with the list of known ones.
+    ``image_size`` (width, height) gives the trackers the frame's size, for the relative
+    positions PMR models (eq. 16) where no ROI frames a target; unknown parameter names are
+    refused with the list of known ones.
     """
     import dataclasses
 

@@ -152,6 +152,7 @@ class ModeScheduler:
         ``predictions``: ``(K, 5)`` ``[x1, y1, x2, y2, track_id]`` Kalman-predicted boxes at
         ``stamp`` of the *stable* (confirmed) tracks only; ``frame_size``: ``(width, height)``.
         """
+        stamp = float(stamp)  # converted first: nothing below may fail after the state changed
         predictions = np.asarray(predictions, dtype=np.float64).reshape(-1, 5)
         finite = np.isfinite(predictions).all(axis=1)
         if not finite.all():
@@ -190,7 +191,7 @@ class ModeScheduler:
             self._global_frames += 1
         plan = FramePlan(
             frame_index=self._frames_seen,
-            stamp=float(stamp),
+            stamp=stamp,
             mode=self._mode,
             layout=self._layout,
             reason=self._last_reason,

@@ -38,9 +38,6 @@ import numpy as np
 
 from gldt_core.track.geometry import iou_xyxy
 
-#: Cost given to forbidden pairs (finite so linear_sum_assignment stays feasible).
-FORBIDDEN = 1e6
-
 #: Pools of at most this many (track, detection) pairs, with at most SMALL_POOL_CONTEXT context
 #: objects, are costed on Python floats (:func:`jcma_cost_rows`): at a handful of targets the
 #: ~100 numpy calls of the vectorised path cost ~10x more than the arithmetic itself.

@@ -238,7 +238,7 @@ class JPTrack(MultiStageTracker):
             score[rows] = final
         used = set()
         # As a cost 1 - P_final with limit 1 - tau_t: a pair is worth matching exactly when it
-        # passes the gate, and a conflict goes to the highest total score.
+        # passes the gate, and a conflict goes to the largest total margin sum(P_final - tau_t).
         for r, col in assign(1.0 - score, score > c.tau_t, 1.0 - c.tau_t):
             tr, d = lost[r], int(cand[col])
             tr.update(dets[d, :4], dets[d, 4], t, rel[d])

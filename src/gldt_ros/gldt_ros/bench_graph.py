@@ -25,6 +25,7 @@ import json
 import math
 import re
 import shutil
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -69,10 +70,7 @@ def paired_overhead(offline_s: list[float], lockstep_s: list[float]) -> tuple[fl
     if not offline_s or len(offline_s) != len(lockstep_s):
         raise ValueError(f"need as many offline as lockstep runs, got {len(offline_s)} and {len(lockstep_s)}")
     each = [lock / off - 1.0 for off, lock in zip(offline_s, lockstep_s)]
-    ordered = sorted(each)
-    middle = len(ordered) // 2
-    median = ordered[middle] if len(ordered) % 2 else 0.5 * (ordered[middle - 1] + ordered[middle])
-    return median, each
+    return statistics.median(each), each
 
 
 def graph_run(bag: Path, extra: list[str]) -> str:
@@ -128,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
         lockstep_runs.append(float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames)
     overhead, overheads = paired_overhead(offline_runs, lockstep_runs)
     overhead_no_decode, _ = paired_overhead([o - d for o, d in zip(offline_runs, decode_runs)], lockstep_runs)
-    offline_s, decode_s, lockstep_s = (sorted(runs)[len(runs) // 2] for runs in (offline_runs, decode_runs, lockstep_runs))
+    offline_s, decode_s, lockstep_s = (statistics.median(runs) for runs in (offline_runs, decode_runs, lockstep_runs))
     free = graph_run(args.bag, ["--rate", str(args.rate), *mode])
     core_rate = sustained_rate(offline_s, bag_fps)
     # The latency goal holds "at the rate the core sustains": where the core is slower than the
