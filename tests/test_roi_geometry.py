@@ -259,3 +259,45 @@ def test_windows_clipped_onto_each_other_are_merged_not_cropped_twice():
     for a in range(len(layout)):
         for b in range(a + 1, len(layout)):
             assert roi_overlap(layout.rois[a], layout.rois[b]) <= RoiParams().tau_overlap
+
+
+def _reference_layout(boxes: np.ndarray, frame_size: tuple[int, int], params: RoiParams) -> list[tuple[int, ...]]:
+    """plan_rois' steps written plainly (one id per box, no previous groups): split, then merge
+    the most overlapping pair of clipped windows, one pair at a time, re-measuring everything."""
+    from gldt_core.pipeline.roi import roi_for_boxes
+
+    centres = (boxes[:, :2] + boxes[:, 2:4]) * 0.5
+
+    def spread(group):
+        pts = centres[list(group)]
+        return max((float(np.hypot(*(p - q))) for p in pts for q in pts), default=0.0)
+
+    def window(group):
+        return clip_roi(roi_for_boxes(boxes[list(group)], params), frame_size)
+
+    groups = [[i] for i in range(len(boxes))]
+    while True:
+        best = None
+        for a in range(len(groups)):
+            for b in range(a + 1, len(groups)):
+                overlap = roi_overlap(window(groups[a]), window(groups[b]))
+                if overlap <= params.tau_overlap or spread(groups[a] + groups[b]) > params.tau_distance:
+                    continue
+                if best is None or overlap > best[0]:
+                    best = (overlap, a, b)
+        if best is None:
+            return sorted(tuple(sorted(g)) for g in groups)
+        _, a, b = best
+        groups[a] = groups[a] + groups[b]
+        del groups[b]
+
+
+@pytest.mark.parametrize("seed", range(30))
+def test_plan_rois_merges_like_the_plain_greedy_loop(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    frame_size = [(1920, 1080), (640, 512), (320, 256)][seed % 3]
+    count = int(rng.integers(2, 12))
+    centres = rng.uniform([0, 0], frame_size, size=(count, 2))
+    boxes = np.array([box_at(x, y, float(rng.uniform(6, 40))) for x, y in centres])
+    layout = plan_rois(boxes, None, frame_size)
+    assert sorted(layout.groups) == _reference_layout(boxes, frame_size, RoiParams())
