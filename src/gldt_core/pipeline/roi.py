@@ -257,7 +257,6 @@ def plan_rois(
         return float(distance[np.ix_(members, members)].max())
 
     windows = [window(g) for g in groups]
-    spreads = [spread(g) for g in groups]
     while len(groups) > 1:
         overlap = np.triu(overlap_matrix(np.array(windows, dtype=np.float64)), k=1)
         candidates = np.flatnonzero(overlap > params.tau_overlap)
@@ -266,8 +265,7 @@ def plan_rois(
         best: tuple[int, int] | None = None
         for flat in candidates:
             a, b = divmod(int(flat), len(groups))
-            between = distance[np.ix_([index_of[i] for i in groups[a]], [index_of[i] for i in groups[b]])].max()
-            if max(spreads[a], spreads[b], float(between)) <= params.tau_distance:
+            if spread(groups[a] + groups[b]) <= params.tau_distance:
                 best = (a, b)
                 break
         if best is None:
@@ -275,8 +273,7 @@ def plan_rois(
         a, b = best
         groups[a] = groups[a] + groups[b]
         windows[a] = window(groups[a])
-        spreads[a] = spread(groups[a])
-        del groups[b], windows[b], spreads[b]
+        del groups[b], windows[b]
 
     # (4) order windows by their smallest id so the layout is deterministic.
     order = sorted(range(len(groups)), key=lambda k: min(groups[k]))
