@@ -32,10 +32,13 @@ def test_global_and_local_models_are_timed_against_the_first(capsys: pytest.Capt
     local, global_, single = (shipped_model_path(kind) for kind in ("local", "global", "global_nostff"))
     assert main(["bench", "latency", str(local), str(global_), str(single), "--rounds", "2"]) == 0
     lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("  ")]
-    assert len(lines) == 3
+    assert len(lines) == 4
     assert str(local) in lines[0] and " local " in lines[0] and lines[0].rstrip().endswith("x1.00")
-    assert str(global_) in lines[1] and " global " in lines[1]
-    assert str(single) in lines[2] and " global " in lines[2], "the single-frame global model is a global model"
+    assert str(global_) in lines[1] and " global " in lines[1] and "no feature reuse" not in lines[1]
+    # AM-YOLO ships with its split pair, so it is also timed without it, in the same rounds.
+    assert f"{global_} (no feature reuse)" in lines[2] and " global " in lines[2]
+    assert str(single) in lines[3] and " global " in lines[3], "the single-frame global model is a global model"
+    assert "no feature reuse" not in lines[3], "the single-frame model has nothing to reuse"
 
 
 def test_a_missing_or_broken_model_is_one_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -149,14 +149,16 @@ def test_unusable_models_raise_config_errors(tmp_path: Path) -> None:
 
 
 def test_detect_pair_reuses_the_previous_input_with_identical_boxes(global_detector: GlobalDetector) -> None:
-    """A stream that hands back the letterboxed input gets exactly what detect() computes."""
+    """A stream that hands back the carry (letterboxed input, features) gets exactly what detect() computes."""
+    from gldt_core.detect.staged import GlobalCarry
+
     frames = [textured_frame(960, 540, seed) for seed in range(3)]
-    first, first_input = global_detector.detect_pair(None, frames[0])
+    first, first_carry = global_detector.detect_pair(None, frames[0])
     np.testing.assert_array_equal(first, global_detector.detect(None, frames[0]))
-    second, second_input = global_detector.detect_pair(frames[0], frames[1], first_input)
+    second, second_carry = global_detector.detect_pair(frames[0], frames[1], first_carry)
     np.testing.assert_array_equal(second, global_detector.detect(frames[0], frames[1]))
-    # An input of another size (the frame size changed) is ignored, not fed to the model.
-    stale = global_detector.detect_pair(frames[1], frames[2], np.zeros((64, 64, 3), np.uint8))[0]
+    # A carry of another size (the frame size changed) is ignored, not fed to the model.
+    stale = global_detector.detect_pair(frames[1], frames[2], GlobalCarry(np.zeros((64, 64, 3), np.uint8)))[0]
     np.testing.assert_array_equal(stale, global_detector.detect(frames[1], frames[2]))
-    assert second_input.shape == first_input.shape
+    assert second_carry.input.shape == first_carry.input.shape
 

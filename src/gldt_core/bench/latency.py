@@ -4,8 +4,9 @@ Choosing between model variants (fp32 or int8, a 256 or a 224 px local input, an
 means comparing milliseconds that differ by 10-20 %, and this shared machine drifts by more than
 that between runs. So every model runs once per round, rounds repeat, and each model's median is
 printed with its ratio to the first model given (the peer). A global model (two inputs: previous
-and current frame) is timed on a 1080p frame pair, a local model (one batched input) on four
-300 px ROIs of that frame, both including pre- and post-processing, as the pipeline calls them.
+and current frame) is timed on a GD stretch of 1080p frames (each frame paired with the one
+before, as the pipeline runs it), a local model (one batched input) on four 300 px ROIs of a
+frame, both including pre- and post-processing, as the pipeline calls them.
 """
 
 from __future__ import annotations
@@ -33,8 +34,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_run)
 
 
-def detector_call(path: Path, threads: int) -> tuple[str, Callable[[], Any]]:
-    """``(kind, call)``: what the model is (``global``/``local``, told by its inputs) and one timed call."""
+def gd_stretch_call(detector: Any, frames: list[Any]) -> Callable[[], Any]:
+    """One call = the next frame of a GD stretch over ``frames`` (each with the one before it),
+    handing each frame's carry (letterboxed input, reusable features) to the next as the pipeline does."""
+    state: dict[str, Any] = {"index": 0, "carry": None}
+
+    def call() -> Any:
+        index = state["index"] = state["index"] + 1
+        previous, current = frames[(index - 1) % len(frames)], frames[index % len(frames)]
+        detections, state["carry"] = detector.detect_pair(previous, current, state["carry"])
+        return detections
+
+    return call
+
+
+def detector_calls(path: Path, threads: int) -> list[tuple[str, str, Callable[[], Any]]]:
+    """``(label, kind, call)`` rows for one model: what it is (``global``/``local``, told by its
+    inputs) and one timed call. An AM-YOLO with a split pair (``gldt export --feature-reuse``)
+    gets a second row without it, so the reuse shows as a ratio measured in the same rounds."""
     import numpy as np
     import onnxruntime as ort
 
@@ -48,15 +65,19 @@ def detector_call(path: Path, threads: int) -> tuple[str, Callable[[], Any]]:
     except Exception as error:  # onnxruntime raises several private exception types
         raise DetectorConfigError(f"{path}: cannot load ONNX model ({type(error).__name__})") from error
     rng = np.random.default_rng(0)
-    frame = rng.integers(90, 170, size=(1080, 1920, 3), dtype=np.uint8)
+    frames = [rng.integers(90, 170, size=(1080, 1920, 3), dtype=np.uint8) for _ in range(2)]
     # Local models have one input of a fixed square size; global ones (AM-YOLO takes two frames,
     # its no-STFF ablation one) have a dynamic height and width.
     if len(inputs) == 2 or not all(isinstance(side, int) for side in inputs[0].shape[2:]):
         detector = GlobalDetector(model_path=path, num_threads=threads)
-        return "global", lambda: detector.detect(frame, frame)
+        rows = [(str(path), "global", gd_stretch_call(detector, frames))]
+        if detector.feature_reuse is not None:
+            full = GlobalDetector(model_path=path, num_threads=threads, feature_reuse=False)
+            rows.append((f"{path} (no feature reuse)", "global", gd_stretch_call(full, frames)))
+        return rows
     local = LocalDetector(model_path=path, num_threads=threads)
     rois = np.array(ROIS_1080P)
-    return "local", lambda: local.detect_rois(frame, rois)
+    return [(str(path), "local", lambda: local.detect_rois(frames[0], rois))]
 
 
 def interleaved_medians(calls: list[Callable[[], Any]], rounds: int, warmup: int = 3) -> list[float]:
@@ -74,10 +95,11 @@ def interleaved_medians(calls: list[Callable[[], Any]], rounds: int, warmup: int
 def _run(args: argparse.Namespace) -> int:
     if args.rounds < 1 or args.threads < 1:
         raise ValueError(f"--rounds and --threads must be >= 1, got {args.rounds} and {args.threads}")
-    kinds, calls = zip(*(detector_call(path, args.threads) for path in args.models))
+    rows = [row for path in args.models for row in detector_calls(path, args.threads)]
+    labels, kinds, calls = zip(*rows)
     medians = interleaved_medians(list(calls), args.rounds)
     print(f"latency, median of {args.rounds} interleaved rounds, onnxruntime threads={args.threads} "
-          "(global: a 1080p frame pair; local: 4 ROIs of 300 px), ratio to the first model:")
-    for path, kind, median in zip(args.models, kinds, medians):
-        print(f"  {str(path):48s} {kind:6s} {median:7.1f} ms  x{median / medians[0]:.2f}")
+          "(global: a frame of a GD stretch of 1080p frames; local: 4 ROIs of 300 px), ratio to the first row:")
+    for label, kind, median in zip(labels, kinds, medians):
+        print(f"  {label:66s} {kind:6s} {median:7.1f} ms  x{median / medians[0]:.2f}")
     return 0

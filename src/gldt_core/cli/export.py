@@ -16,7 +16,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     parser.add_argument("checkpoint", help="checkpoint written by `gldt train` (or an .onnx model with --int8 or --rewrite-windows)")
-    parser.add_argument("--out", required=True, help="output .onnx path (card written next to it)")
+    parser.add_argument("--out", default=None, help="output .onnx path (card written next to it); not with --feature-reuse")
     parser.add_argument("--name", default=None, help="model name for the card (default: file stem)")
     parser.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=None, help="example/nominal input size (default: global 640 384, local from the config)")
     parser.add_argument("--note", default="", help="free text for the card (e.g. how the model was trained)")
@@ -27,21 +27,52 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="rewrite an exported .onnx's 6-D STFF window permutes as 4-D ones (same outputs, checked; faster in onnxruntime; no torch needed)",
     )
+    parser.add_argument(
+        "--feature-reuse",
+        action="store_true",
+        help=(
+            "split an exported AM-YOLO .onnx into NAME.features.onnx and NAME.reuse.onnx next to it, so a stream of "
+            "GD frames computes the shared backbone's first stages once per frame (same outputs, checked; no torch needed)"
+        ),
+    )
     parser.set_defaults(func=_run)
+
+
+def _write_feature_reuse(model: "Path") -> None:
+    from gldt_core.detect.feature_split import write_feature_reuse
+
+    result = write_feature_reuse(model)
+    print(
+        f"wrote {result.features_model.name} and {result.reuse_model.name} next to {model}: features {result.split_tensor!r} "
+        f"({result.channels} channels, stride {result.stride}) reused across GD frames; outputs within {result.max_abs_diff:.1e}"
+    )
 
 
 def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    if args.int8 and args.rewrite_windows:
-        raise ValueError("--int8 and --rewrite-windows are separate steps: rewrite first, then quantize the rewritten file")
+    modes = [flag for flag, on in (("--int8", args.int8), ("--rewrite-windows", args.rewrite_windows), ("--feature-reuse", args.feature_reuse)) if on]
+    if len(modes) > 1:
+        raise ValueError(f"{' and '.join(modes)} are separate steps: rewrite first, then split or quantize the rewritten file")
+    if args.feature_reuse:
+        if Path(args.checkpoint).suffix != ".onnx":
+            raise ValueError(f"--feature-reuse splits an exported .onnx model, got {args.checkpoint}")
+        if args.out is not None:
+            raise ValueError("--feature-reuse writes NAME.features.onnx and NAME.reuse.onnx next to the model (where the runtime looks); drop --out")
+        _write_feature_reuse(Path(args.checkpoint))
+        return 0
+    if args.out is None:
+        raise ValueError("--out is required (the .onnx file to write)")
     if args.rewrite_windows:
+        from gldt_core.detect.feature_reuse import features_path
         from gldt_core.detect.window_rewrite import rewrite_model_file
 
         if Path(args.checkpoint).suffix != ".onnx":
             raise ValueError(f"--rewrite-windows rewrites an exported .onnx model, got {args.checkpoint}")
         count, diff = rewrite_model_file(args.checkpoint, args.out)
         print(f"wrote {args.out}: {count} window permutes rewritten, outputs within {diff:.1e} of {args.checkpoint}")
+        if features_path(Path(args.out)).is_file():  # the old split pair no longer matches the file
+            _write_feature_reuse(Path(args.out))
         return 0
 
     if args.int8:
@@ -97,4 +128,6 @@ def _run(args: argparse.Namespace) -> int:
     for seed in (0, 1):
         diffs.append(torch_vs_onnx(model, out, example_inputs(model, width, height, batch=1 if task == "global" else 4, seed=seed)))
     print(f"wrote {out} ({card['size_bytes'] / 1e6:.2f} MB) and {out.with_suffix('.json')}; torch vs onnxruntime max |diff| {max(diffs):.2e}")
+    if task == "global" and model.spec.stff_levels:
+        _write_feature_reuse(out)
     return 0

@@ -19,7 +19,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from .feature_reuse import FeatureReuse, load_feature_reuse
 from .postprocess import ensure_bgr, rect_input_size
+from .staged import GlobalCarry
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 DEFAULT_GLOBAL_MODEL = MODELS_DIR / "global_amyolo.onnx"
@@ -151,15 +153,26 @@ class _OnnxDetector:
         if not 0.0 <= score_threshold <= 1.0:
             raise DetectorConfigError(f"score_threshold must be in [0, 1], got {score_threshold}")
         self.model_path = Path(model_path) if model_path is not None else default_path
-        self.session, self.card = open_session(self.model_path, providers, num_threads, self.EXPECTATION, optimize_graph)
+        self.providers, self.num_threads = tuple(providers), num_threads
+        self._session, self.card = open_session(self.model_path, providers, num_threads, self.EXPECTATION, optimize_graph)
+        self._reopen_optimized = False  # set by a subclass that opened the file unoptimised only to check it
         self.score_threshold = float(score_threshold)
         self.iou_threshold = float(iou_threshold)
-        return list(self.session.get_inputs())
+        return list(self._session.get_inputs())
+
+    @property
+    def session(self) -> Any:
+        """The model's onnxruntime session. One opened without graph optimisation only to check the
+        file and read its card (``_reopen_optimized``) is reopened optimised when first asked for."""
+        if self._reopen_optimized:
+            self._session, _ = open_session(self.model_path, self.providers, self.num_threads, self.EXPECTATION, True)
+            self._reopen_optimized = False
+        return self._session
 
     def _read_classes(self, classes: Sequence[int] | None) -> None:
         """Class ids of the output channels (after the inputs were found usable), and the channels
         of the ``classes`` (MOT codes) the caller asks about; None asks about every class."""
-        self.class_ids = _class_ids(self.card, _output_classes(self.session, self.model_path, self.card))
+        self.class_ids = _class_ids(self.card, _output_classes(self._session, self.model_path, self.card))
         self.classes = None if classes is None else tuple(int(c) for c in classes)
         self.class_channels: np.ndarray | None = None
         if self.classes is not None:
@@ -179,6 +192,10 @@ class GlobalDetector(_OnnxDetector):
     the card's training long side) and whose sides are multiples of the card's ``input_multiple``;
     a 1920x1080 frame becomes 640x384 with the default 640. ``optimize_graph=False`` is for
     callers that only letterbox frames for it (:meth:`input_size`): it opens 4x faster.
+
+    ``feature_reuse`` (None: when available) runs the split pair written by ``gldt export MODEL
+    --feature-reuse`` instead of the full model, with the same boxes; :meth:`detect_pair` then
+    hands each GD frame's features to the next (:mod:`gldt_core.detect.feature_reuse`).
     """
 
     EXPECTATION = GLOBAL_INPUT_EXPECTATION
@@ -194,10 +211,19 @@ class GlobalDetector(_OnnxDetector):
         max_detections: int = 300,
         optimize_graph: bool = True,
         classes: Sequence[int] | None = None,
+        feature_reuse: bool | None = None,
     ):
+        path = Path(model_path) if model_path is not None else DEFAULT_GLOBAL_MODEL
+        # With the split pair the full model is only checked here (opened unoptimised, 4x faster)
+        # and optimised later only if someone asks for ``session``.
+        self.feature_reuse: FeatureReuse | None = None
+        if optimize_graph and path.is_file():
+            self.feature_reuse = load_feature_reuse(path, providers, num_threads, feature_reuse)
         inputs = self._open(
-            model_path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold, optimize_graph
+            path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold,
+            optimize_graph and self.feature_reuse is None,
         )
+        self._reopen_optimized = self.feature_reuse is not None
         if len(inputs) not in (1, 2):
             raise DetectorConfigError(
                 f"{self.model_path}: has {len(inputs)} inputs; a global detector needs (previous, current) frames, each (1, 3, H, W)"
@@ -234,29 +260,35 @@ class GlobalDetector(_OnnxDetector):
         self,
         previous_bgr: np.ndarray | None,
         current_bgr: np.ndarray,
-        previous_input: np.ndarray | None = None,
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """:meth:`detect` that also returns the current frame's letterboxed network input.
+        carry: GlobalCarry | None = None,
+    ) -> tuple[np.ndarray, GlobalCarry]:
+        """:meth:`detect` that also returns what the next GD frame can reuse of this one.
 
-        A stream caller passes that input back as ``previous_input`` on the next frame, so each
-        frame of a global-detection stretch is letterboxed once instead of twice (a 1080p resize
-        is a few ms, as much as a tenth of the model time); ``frame_pair_buffer`` does the same in
-        the ROS graph. ``previous_input`` must come from ``previous_bgr``; one of another shape
-        (the frame size changed) is ignored and the previous frame letterboxed afresh.
+        A stream caller passes that :class:`~gldt_core.detect.staged.GlobalCarry` back as
+        ``carry`` on the next frame, so each frame of a GD stretch is letterboxed once instead of
+        twice (a 1080p resize is a few ms) and, with the split model, runs the backbone's first
+        stages once instead of twice; ``frame_pair_buffer`` and ``global_detector`` do the same in
+        the ROS graph. ``carry`` must come from the frame ``previous_bgr``; one of another input
+        size (the frame size changed) is ignored and the previous frame processed afresh.
         """
         current = ensure_bgr(current_bgr, "current frame")
         previous = current if previous_bgr is None else ensure_bgr(previous_bgr, "previous frame")
         if previous.shape != current.shape:
             raise ValueError(f"previous frame {previous.shape[1]}x{previous.shape[0]} and current frame {current.shape[1]}x{current.shape[0]} differ in size")
-        from .staged import detect_global_prepared, prepare_global_input
+        from .staged import detect_global_streamed, prepare_global_input
 
         current_input, mapping = prepare_global_input(self, current)
+        previous_features = None
         if previous is current:
             previous_input = current_input
-        elif previous_input is None or previous_input.shape != current_input.shape:
+        elif carry is not None and carry.input.shape == current_input.shape:
+            previous_input, previous_features = carry.input, carry.features
+        else:
             previous_input = prepare_global_input(self, previous)[0]
-        detections = detect_global_prepared(self, previous_input, current_input, mapping, current.shape[1], current.shape[0])
-        return detections, current_input
+        detections, current_features = detect_global_streamed(
+            self, previous_input, current_input, mapping, current.shape[1], current.shape[0], previous_features
+        )
+        return detections, GlobalCarry(current_input, current_features)
 
 
 class LocalDetector(_OnnxDetector):

@@ -1,7 +1,8 @@
 """The detectors split at the process boundary of the ROS graph.
 
 ``GlobalDetector.detect`` = :func:`prepare_global_input` on both frames (letterbox to the network
-input) + :func:`detect_global_prepared`; ``LocalDetector.detect_rois`` = ``LocalDetector.crop``
+input) + :func:`detect_global_prepared` (:func:`detect_global_streamed` when the previous GD
+frame's features are at hand); ``LocalDetector.detect_rois`` = ``LocalDetector.crop``
 on each ROI + :func:`detect_local_crops`. The ROS graph runs the first half in
 ``frame_pair_buffer`` (the only node holding full frames) and the second half in the detector
 nodes, and the offline wrappers call these same functions, so both give identical boxes.
@@ -9,6 +10,7 @@ nodes, and the offline wrappers call these same functions, so both give identica
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Sequence
 
 import numpy as np
@@ -30,6 +32,16 @@ def prepare_global_input(detector: Any, frame_bgr: np.ndarray) -> tuple[np.ndarr
     return letterbox(frame, input_w, input_h)
 
 
+@dataclass(frozen=True)
+class GlobalCarry:
+    """What one GD frame leaves for the next one: its letterboxed network input and, when the
+    detector reuses features (:mod:`gldt_core.detect.feature_reuse`), the backbone features
+    computed from that input. Valid only for the frame that comes right after it."""
+
+    input: np.ndarray
+    features: np.ndarray | None = None
+
+
 def detect_global_prepared(
     detector: Any,
     previous_input: np.ndarray,
@@ -39,16 +51,42 @@ def detect_global_prepared(
     frame_height: int,
 ) -> np.ndarray:
     """Run AM-YOLO on an already letterboxed pair; ``(N, 6)`` float32 boxes in full-frame pixels."""
+    return detect_global_streamed(detector, previous_input, current_input, mapping, frame_width, frame_height)[0]
+
+
+def detect_global_streamed(
+    detector: Any,
+    previous_input: np.ndarray,
+    current_input: np.ndarray,
+    mapping: Letterbox,
+    frame_width: int,
+    frame_height: int,
+    previous_features: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """:func:`detect_global_prepared` that takes the previous frame's features and returns the current's.
+
+    ``previous_features`` must have been returned for ``previous_input`` (the caller keys them by
+    frame); ones of the wrong shape are ignored and recomputed. The features returned are None
+    when the detector has no split model to reuse them with.
+    """
     if previous_input.shape != current_input.shape:
         raise ValueError(
             f"letterboxed previous {previous_input.shape} and current {current_input.shape} inputs differ in shape"
         )
-    if detector.dual_frame:
-        feed = dict(zip(detector.input_names, (to_blob([previous_input]), to_blob([current_input]))))
-    else:
-        feed = {detector.input_names[0]: to_blob([current_input])}
-    (output,) = detector.session.run(None, feed)
     input_h, input_w = current_input.shape[:2]
+    reuse = getattr(detector, "feature_reuse", None)
+    current_features = None
+    if reuse is not None:
+        current_blob = to_blob([current_input])
+        if not reuse.accepts(previous_features, input_h, input_w):
+            previous_blob = current_blob if previous_input is current_input else to_blob([previous_input])
+            previous_features = reuse.features(previous_blob)
+        output, current_features = reuse.detect(current_blob, previous_features)
+    elif detector.dual_frame:
+        feed = dict(zip(detector.input_names, (to_blob([previous_input]), to_blob([current_input]))))
+        (output,) = detector.session.run(None, feed)
+    else:
+        (output,) = detector.session.run(None, {detector.input_names[0]: to_blob([current_input])})
     detections = decode_output(
         output[0], detector.score_threshold, detector.iou_threshold, detector.max_detections, box_scale=(input_w, input_h),
         channels=detector.class_channels,
@@ -56,7 +94,7 @@ def detect_global_prepared(
     detections = _drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
     if len(detections):
         detections[:, 5] = detector.class_ids[detections[:, 5].astype(np.int64)]
-    return detections.astype(np.float32)
+    return detections.astype(np.float32), current_features
 
 
 def detect_local_crops(

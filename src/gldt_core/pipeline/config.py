@@ -15,6 +15,7 @@ Example (every key shown with its default)::
       providers: [CPUExecutionProvider]
       classes: [1]            # MOT class codes to detect and track (1 drone, 2 bird, 3 airplane); null = all
       nms_iou: 0.5            # duplicate removal across overlapping ROIs
+      feature_reuse: null     # AM-YOLO's split pair (gldt export --feature-reuse): null = when present, false = never, true = required
     tracker:
       name: jptrack           # or bytetrack
       params: {}              # for the named tracker's config
@@ -74,6 +75,7 @@ class DetectorSettings:
     providers: tuple[str, ...] = ("CPUExecutionProvider",)
     classes: tuple[int, ...] | None = (1,)
     nms_iou: float = 0.5
+    feature_reuse: bool | None = None
 
     def __post_init__(self) -> None:
         if self.score_threshold is not None and not 0.0 <= self.score_threshold <= 1.0:
@@ -149,6 +151,7 @@ _DETECTOR_KEYS = {
     "providers": list,
     "classes": list,
     "nms_iou": float,
+    "feature_reuse": bool,
 }
 _TRACKER_KEYS = {"name": str, "params": dict, "jptrack": dict, "bytetrack": dict}
 _TOP_KEYS = {"scheduler", "roi", "detector", "tracker", "track_lost_frames"}

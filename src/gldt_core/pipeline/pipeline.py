@@ -23,7 +23,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
@@ -38,6 +38,9 @@ from gldt_core.pipeline.steps import (
     valid_detection_mask,
 )
 from gldt_core.pipeline.timing import StageTimer
+
+if TYPE_CHECKING:
+    from gldt_core.detect.staged import GlobalCarry
 
 LOG = logging.getLogger("gldt.pipeline")
 
@@ -137,7 +140,7 @@ def build_detectors(config: PipelineConfig) -> tuple[GlobalDetectorLike, LocalDe
     kwargs: dict[str, Any] = {"providers": tuple(settings.providers), "classes": settings.classes}
     if settings.score_threshold is not None:
         kwargs["score_threshold"] = settings.score_threshold
-    global_detector = detect.GlobalDetector(model_path=settings.global_model, **kwargs)
+    global_detector = detect.GlobalDetector(model_path=settings.global_model, feature_reuse=settings.feature_reuse, **kwargs)
     local_detector = None
     if config.scheduler.local_enabled:
         local_detector = detect.LocalDetector(model_path=settings.local_model, **kwargs)
@@ -185,9 +188,10 @@ class GLDTPipeline:
         self._invalid_detections = 0
         self._size: tuple[int, int] | None = None
         self._previous: np.ndarray | None = None
-        # Letterboxed network input of the previous frame when that frame was a GD frame (see
-        # GlobalDetector.detect_pair); None after LD frames and resets.
-        self._previous_input: np.ndarray | None = None
+        # What the previous frame left for this one when it was a GD frame: its letterboxed
+        # network input and backbone features (GlobalDetector.detect_pair); None after LD frames
+        # and resets.
+        self._previous_carry: GlobalCarry | None = None
         self._last_t: float | None = None
         self._period: float | None = None
         self._last_plan: FramePlan | None = None
@@ -225,7 +229,7 @@ class GLDTPipeline:
         self.tracker.reset()
         self.scheduler.reset()
         self._previous = None
-        self._previous_input = None
+        self._previous_carry = None
         self._size = None
         self._last_t = None
         self._period = None
@@ -268,13 +272,14 @@ class GLDTPipeline:
         return raw
 
     def _detect_global(self, previous: np.ndarray, frame: np.ndarray) -> np.ndarray:
-        """The global detector on ``(previous, frame)``, reusing the previous GD frame's letterboxed
-        input when the detector offers ``detect_pair`` (the shipped one does; test doubles need not)."""
+        """The global detector on ``(previous, frame)``, reusing what the previous GD frame left
+        (letterboxed input, backbone features) when the detector offers ``detect_pair`` (the
+        shipped one does; test doubles need not)."""
         detect_pair = getattr(self.global_detector, "detect_pair", None)
         if detect_pair is None:
             return self.global_detector.detect(previous, frame)
-        previous_input, self._previous_input = self._previous_input, None  # stale if detect_pair raises
-        detections, self._previous_input = detect_pair(previous, frame, previous_input)
+        carry, self._previous_carry = self._previous_carry, None  # stale if detect_pair raises
+        detections, self._previous_carry = detect_pair(previous, frame, carry)
         return detections
 
     def process(self, frame: np.ndarray, t: float) -> np.ndarray:
@@ -298,7 +303,7 @@ class GLDTPipeline:
             detection_rois = None
             self._global_frames += 1
         else:
-            self._previous_input = None
+            self._previous_carry = None
             with timer.stage("ld"):
                 raw = self._count_invalid(self.local_detector.detect_rois(frame, plan.rois), 7)
                 raw = merge_local_detections(raw, self.config.detector.classes, self.config.detector.nms_iou)

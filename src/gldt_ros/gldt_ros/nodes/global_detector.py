@@ -2,6 +2,9 @@
 
 It receives the pair already resized to the model's input by ``frame_pair_buffer`` and maps the
 boxes back to full-frame pixels with the pair's scale, exactly as the offline detector does.
+Like the offline pipeline it keeps the last pair's current-frame features (AM-YOLO's split pair,
+``gldt export --feature-reuse``) and reuses them when the next pair's previous frame is that very
+image, which in a GD stretch it is; any other pair (one skipped, a restarted buffer) recomputes them.
 """
 
 from __future__ import annotations
@@ -9,11 +12,12 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import numpy as np
 from gldt_msgs.msg import Detection, DetectionArray, FramePair
 
 from gldt_core.detect import GlobalDetector
 from gldt_core.detect.postprocess import Letterbox
-from gldt_core.detect.staged import detect_global_prepared
+from gldt_core.detect.staged import GlobalCarry, detect_global_streamed
 from gldt_core.pipeline.steps import filter_classes
 
 from gldt_ros import qos, topics
@@ -33,14 +37,24 @@ class GlobalDetectorNode(GldtNode):
         pairs_qos = qos.newest_first(int(self.param("pair_queue_depth")))
         self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), pairs_qos)
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
+        self.last_pair: GlobalCarry | None = None  # the last pair's current input and its features
+
+    def reusable_features(self, previous: np.ndarray) -> np.ndarray | None:
+        """The features kept from the last pair if its current input is exactly ``previous``."""
+        last = self.last_pair
+        if last is None or last.features is None or last.input.shape != previous.shape:
+            return None
+        return last.features if np.array_equal(last.input, previous) else None
 
     def on_pair(self, pair: FramePair) -> None:
         start = time.perf_counter()
-        current = image_to_bgr(pair.current)
+        current, previous = image_to_bgr(pair.current), image_to_bgr(pair.previous)
         letterbox = Letterbox(pair.scale, int(pair.pad_x), int(pair.pad_y), current.shape[1], current.shape[0])
-        raw = detect_global_prepared(
-            self.detector, image_to_bgr(pair.previous), current, letterbox, int(pair.full_width), int(pair.full_height)
+        previous_features, self.last_pair = self.reusable_features(previous), None
+        raw, current_features = detect_global_streamed(
+            self.detector, previous, current, letterbox, int(pair.full_width), int(pair.full_height), previous_features
         )
+        self.last_pair = GlobalCarry(current, current_features)
         detections = filter_classes(raw, 6, self.classes)
         self.publisher.publish(
             DetectionArray(
