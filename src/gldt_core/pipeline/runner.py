@@ -2,7 +2,9 @@
 
 Keeps only what a run needs afterwards - MOTChallenge track rows, the mode of each frame, stage
 times - so memory stays flat however long the video is. Decoding time is measured here (it
-happens when the source yields the next frame) and booked as the ``decode`` stage.
+happens when the source yields the next frame) and booked as the ``decode`` stage; with
+``prefetch`` the source is read in a background thread (:mod:`gldt_core.pipeline.prefetch`) and
+``decode`` is only what the loop still waited for.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ class RunResult:
     ground_truth: np.ndarray | None = None
     stage_ms: dict[str, float] = field(default_factory=dict)  # ms per frame per stage
     reinitialisations: int = 0
+    prefetch_ms: float | None = None  # ms per frame the prefetch thread spent reading (None: inline)
 
     @property
     def fps(self) -> float:
@@ -105,7 +108,7 @@ class _Recorder:
         if self.on_frame is not None:
             self.on_frame(frame, tracks)
 
-    def result(self, seconds: float) -> RunResult:
+    def result(self, seconds: float, prefetch_seconds: float | None = None) -> RunResult:
         count = len(self.modes)
         table = np.vstack(self.rows) if self.rows else np.zeros((0, 10))
         gt_table = None
@@ -121,6 +124,7 @@ class _Recorder:
             ground_truth=gt_table,
             stage_ms={name: ms for name, ms, _, _ in self.pipeline.timer.breakdown(count)},
             reinitialisations=self.pipeline.state.reinitialisations,
+            prefetch_ms=None if prefetch_seconds is None else 1000.0 * prefetch_seconds / max(count, 1),
         )
 
 
@@ -131,15 +135,27 @@ def run_frames(
     max_frames: int | None = None,
     on_frame: Callable[[Any, np.ndarray], None] | None = None,
     collect_ground_truth: bool = False,
+    prefetch: int = 0,
 ) -> RunResult:
     """Process every frame of ``frames`` (objects with ``index``, ``stamp``, ``image`` and
     optionally ``ground_truth``); ``on_frame(frame, tracks)`` is called after each (overlay,
-    progress bar). Output frame numbers are ``index + 1`` (MOTChallenge is 1-based)."""
+    progress bar). Output frame numbers are ``index + 1`` (MOTChallenge is 1-based).
+    ``prefetch`` > 0 reads that many frames ahead in a background thread (same frames, same tracks)."""
     recorder = _Recorder(pipeline, on_frame, collect_ground_truth)
+    if prefetch < 0:
+        raise ValueError(f"prefetch must be >= 0, got {prefetch}")
     start = time.perf_counter()
-    for frame in _timed(frames, pipeline, max_frames):
-        recorder.step(frame)
-    return recorder.result(time.perf_counter() - start)
+    if not prefetch:
+        for frame in _timed(frames, pipeline, max_frames):
+            recorder.step(frame)
+        return recorder.result(time.perf_counter() - start)
+    from gldt_core.pipeline.prefetch import FramePrefetcher
+
+    with FramePrefetcher(frames, prefetch) as ahead:
+        for frame in _timed(ahead, pipeline, max_frames):
+            recorder.step(frame)
+        seconds = time.perf_counter() - start
+    return recorder.result(seconds, ahead.fetch_seconds)
 
 
 def run_frames_interleaved(
