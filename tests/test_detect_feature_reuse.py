@@ -147,18 +147,46 @@ def test_a_split_pair_made_from_another_model_is_never_used(tmp_path: Path, capl
 
 
 def test_the_shipped_split_files_are_what_the_export_writes_today(tmp_path: Path) -> None:
-    """Rewriting the shipped AM-YOLOs gives the shipped split files byte for byte (none is stale)."""
-    pytest.importorskip("onnx")
-    from gldt_core.detect.feature_split import write_feature_reuse
+    """Splitting the shipped AM-YOLOs again gives the shipped split files (none is stale): the same
+    graphs and the same pairing metadata (model-level fields such as the onnx version that wrote
+    them may differ between environments)."""
+    onnx = pytest.importorskip("onnx")
+    from gldt_core.detect.feature_split import MAX_ABS_DIFF, write_feature_reuse
 
     for kind in ("global", "global_balanced"):
         source = shipped_model_path(kind)
         copy = tmp_path / source.name
         shutil.copy(source, copy)
         result = write_feature_reuse(copy)
-        assert result.max_abs_diff == 0.0 and result.stride == 4 and result.channels == 16
+        assert result.max_abs_diff <= MAX_ABS_DIFF and result.stride == 4 and result.channels == 16
         for made, shipped in ((result.features_model, features_path(source)), (result.reuse_model, reuse_path(source))):
-            assert made.read_bytes() == shipped.read_bytes(), f"{shipped.name} is stale: run `gldt export {source} --feature-reuse`"
+            fresh, kept = onnx.load(str(made)), onnx.load(str(shipped))
+            stale = f"{shipped.name} is stale: run `gldt export {source} --feature-reuse`"
+            assert fresh.graph.SerializeToString() == kept.graph.SerializeToString(), stale
+            assert {p.key: p.value for p in fresh.metadata_props} == {p.key: p.value for p in kept.metadata_props}, stale
+
+
+def test_unreadable_split_files_fall_back_to_the_full_model_unless_required(tmp_path: Path, caplog) -> None:
+    """A truncated copy or a Git LFS pointer in place of a split file must not stop the detector."""
+    model = _copy_model(tmp_path)
+    features_path(model).write_text("version https://git-lfs.github.com/spec/v1\noid sha256:0\nsize 1\n")
+    with caplog.at_level("WARNING", logger="gldt.detect"):
+        detector = GlobalDetector(model, num_threads=1)
+    assert detector.feature_reuse is None and "cannot use global_amyolo.features.onnx" in caplog.text
+    frame = bag_frames(REAL_BAG, 1)[0]
+    assert len(detector.detect(frame, frame)) > 0
+    with pytest.raises(DetectorConfigError, match="cannot use global_amyolo.features.onnx"):
+        GlobalDetector(model, num_threads=1, feature_reuse=True)
+
+
+def test_contract_errors_are_clear() -> None:
+    with pytest.raises(DetectorConfigError, match="optimize_graph=False"):
+        GlobalDetector(num_threads=1, optimize_graph=False, feature_reuse=True)
+    detector = GlobalDetector(num_threads=1, optimize_graph=False)
+    assert detector.feature_reuse is None  # geometry only: nothing is run, nothing to reuse
+    frame = bag_frames(REAL_BAG, 1)[0]
+    with pytest.raises(TypeError, match="GlobalCarry"):
+        GlobalDetector(num_threads=1).detect_pair(frame, frame, np.zeros((384, 640, 3), np.uint8))  # type: ignore[arg-type]
 
 
 def test_models_that_cannot_be_split_are_refused_with_nothing_written(tmp_path: Path) -> None:

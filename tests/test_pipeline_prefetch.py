@@ -33,8 +33,11 @@ def test_the_thread_reads_ahead_while_the_consumer_works() -> None:
 
     with FramePrefetcher(source(), depth=2) as ahead:
         assert next(ahead) == 0
-        time.sleep(0.3)  # the consumer "processes" frame 0
-        assert len(readers) == 4  # frame 0 taken, 1-2 queued, 3 read and waiting for room
+        deadline = time.monotonic() + 10
+        while len(readers) < 4 and time.monotonic() < deadline:  # the consumer "processes" frame 0
+            time.sleep(0.01)
+        time.sleep(0.2)
+        assert len(readers) == 4  # frame 0 taken, 1-2 queued, 3 read and waiting for room: no further
         assert list(ahead) == [1, 2, 3, 4, 5]
     assert set(readers) == {"gldt-frame-prefetch"}
 
@@ -70,6 +73,21 @@ def test_close_stops_reading_and_the_source_is_not_touched_afterwards() -> None:
     assert len(reads) == count <= 4 and all(t < closed_at for t in reads)
     with pytest.raises(StopIteration):
         next(ahead)
+
+
+def test_close_from_another_thread_ends_a_consumer_waiting_for_a_frame() -> None:
+    def stalled():
+        yield 1
+        time.sleep(3)  # a source that hangs (a network stream, a slow disk)
+        yield 2
+
+    ahead = FramePrefetcher(stalled(), depth=1)
+    assert next(ahead) == 1
+    threading.Timer(0.2, ahead.close).start()
+    started = time.monotonic()
+    with pytest.raises(StopIteration):
+        next(ahead)
+    assert time.monotonic() - started < 2.5  # woken by close, not by the source's next frame
 
 
 def test_depth_must_be_positive() -> None:

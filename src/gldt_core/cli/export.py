@@ -39,6 +39,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _write_feature_reuse(model: "Path") -> None:
+    try:
+        import onnx  # noqa: F401
+    except ImportError as error:
+        raise ValueError(f"--feature-reuse needs the onnx package (pip install onnx; in the test and train extras): {error}") from error
     from gldt_core.detect.feature_split import write_feature_reuse
 
     result = write_feature_reuse(model)
@@ -53,7 +57,7 @@ def _run(args: argparse.Namespace) -> int:
 
     modes = [flag for flag, on in (("--int8", args.int8), ("--rewrite-windows", args.rewrite_windows), ("--feature-reuse", args.feature_reuse)) if on]
     if len(modes) > 1:
-        raise ValueError(f"{' and '.join(modes)} are separate steps: rewrite first, then split or quantize the rewritten file")
+        raise ValueError(f"{' and '.join(modes)} are separate steps: run one export per step, each on the file the last one wrote")
     if args.feature_reuse:
         if Path(args.checkpoint).suffix != ".onnx":
             raise ValueError(f"--feature-reuse splits an exported .onnx model, got {args.checkpoint}")
@@ -71,8 +75,8 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"--rewrite-windows rewrites an exported .onnx model, got {args.checkpoint}")
         count, diff = rewrite_model_file(args.checkpoint, args.out)
         print(f"wrote {args.out}: {count} window permutes rewritten, outputs within {diff:.1e} of {args.checkpoint}")
-        if features_path(Path(args.out)).is_file():  # the old split pair no longer matches the file
-            _write_feature_reuse(Path(args.out))
+        if features_path(Path(args.checkpoint)).is_file() or features_path(Path(args.out)).is_file():
+            _write_feature_reuse(Path(args.out))  # the new file gets its own split pair; an old one would not match it
         return 0
 
     if args.int8:

@@ -81,9 +81,10 @@ def load_feature_reuse(
 ) -> FeatureReuse | None:
     """The split pair of ``model_path`` if it should be used, else None.
 
-    ``wanted``: None uses the pair when both files are there and made from this model (a stale
-    pair is skipped with a warning: the full model gives the same boxes, only slower); True
-    requires it (missing or stale files raise :class:`DetectorConfigError`); False never loads it.
+    ``wanted``: None uses the pair when both files are there, load and were made from this model
+    (a stale or unreadable pair is skipped with a warning: the full model gives the same boxes,
+    only slower); True requires it (such files raise :class:`DetectorConfigError`); False never
+    loads it.
     """
     from .runtime import DetectorConfigError, open_session
 
@@ -96,26 +97,29 @@ def load_feature_reuse(
         if wanted:
             raise DetectorConfigError(f"{model_path}: feature reuse asked for, but {', '.join(missing)} not found; {regenerate}")
         return None
-    features_session, _ = open_session(features_file, providers, num_threads, "input (1, 3, H, W) float32 RGB 'current'")
-    raw = features_session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
-    try:
-        pairing = json.loads(raw) if raw else None
-    except json.JSONDecodeError:
-        pairing = None
-    problem = None
-    if not isinstance(pairing, dict) or not {"source_sha256", "reuse_sha256", "channels", "stride"} <= set(pairing):
-        problem = f"{features_file} has no valid '{METADATA_KEY}' metadata"
-    elif pairing["source_sha256"] != _sha256(model_path):
-        problem = f"{features_file} was made from another version of {model_path.name}"
-    elif pairing["reuse_sha256"] != _sha256(reuse_file):
-        problem = f"{reuse_file} is not the file {features_file.name} was written with"
-    if problem is not None:
+
+    def unusable(problem: str) -> None:
         if wanted:
             raise DetectorConfigError(f"{model_path}: {problem}; {regenerate}")
         LOG.warning("%s: %s; running the full model on every frame pair (%s)", model_path, problem, regenerate)
-        return None
-    reuse_session, _ = open_session(reuse_file, providers, num_threads, "inputs 'current' (1, 3, H, W) and 'previous_features'")
+
+    try:
+        features_session, _ = open_session(features_file, providers, num_threads, "input (1, 3, H, W) float32 RGB 'current'")
+        raw = features_session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
+        pairing = json.loads(raw) if raw else None
+    except (DetectorConfigError, json.JSONDecodeError) as error:  # a truncated copy, an LFS pointer, a provider that cannot build it
+        return unusable(f"cannot use {features_file.name} ({str(error).splitlines()[0][:200]})")
+    if not isinstance(pairing, dict) or not {"source_sha256", "reuse_sha256", "channels", "stride"} <= set(pairing):
+        return unusable(f"{features_file} has no valid '{METADATA_KEY}' metadata")
+    if pairing["source_sha256"] != _sha256(model_path):
+        return unusable(f"{features_file} was made from another version of {model_path.name}")
+    if pairing["reuse_sha256"] != _sha256(reuse_file):
+        return unusable(f"{reuse_file} is not the file {features_file.name} was written with")
+    try:
+        reuse_session, _ = open_session(reuse_file, providers, num_threads, "inputs 'current' (1, 3, H, W) and 'previous_features'")
+    except DetectorConfigError as error:
+        return unusable(f"cannot use {reuse_file.name} ({str(error).splitlines()[0][:200]})")
     names = {i.name for i in reuse_session.get_inputs()}
     if names != {CURRENT_INPUT, PREVIOUS_FEATURES}:
-        raise DetectorConfigError(f"{reuse_file}: inputs {sorted(names)}; expected {[CURRENT_INPUT, PREVIOUS_FEATURES]}")
+        return unusable(f"{reuse_file} has inputs {sorted(names)}, expected {[CURRENT_INPUT, PREVIOUS_FEATURES]}")
     return FeatureReuse(features_session, reuse_session, pairing["channels"], pairing["stride"], model_path)

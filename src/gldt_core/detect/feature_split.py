@@ -106,7 +106,14 @@ def find_split(model: Any) -> tuple[Any, str, str, str]:
     if concat.input[0] != CURRENT_INPUT:
         raise FeatureSplitError(f"expected the batch to start with input {CURRENT_INPUT!r}, found {list(concat.input)}")
     previous = concat.input[1]
-    slices = [n for n in graph.node if _is_batch_slice(graph, n)]
+    if sum(previous in n.input for n in graph.node) != 1:
+        raise FeatureSplitError(f"input {previous!r} is used outside the frame batch; it cannot be replaced by features")
+    # The tensors computed from the stacked frames (not from their shapes), in graph order.
+    batched = {concat.output[0]}
+    for node in graph.node:
+        if node.op_type != "Shape" and any(name in batched for name in node.input):
+            batched.update(node.output)
+    slices = [n for n in graph.node if _is_batch_slice(graph, n) and n.input[0] in batched]
     if not slices:
         raise FeatureSplitError("no Slice along the batch axis: the frames are never taken apart, nothing to reuse")
     split = slices[0].input[0]
@@ -153,6 +160,9 @@ def _features_model(reuse_file: Path, split: str, out: Path) -> None:
 
     onnx.utils.extract_model(str(reuse_file), str(out), [CURRENT_INPUT], [split])
     proto = onnx.load(str(out))
+    # Shapes the extraction inferred: what onnx's shape inference writes varies between onnx
+    # versions, and onnxruntime infers them itself, so leave them out (reproducible bytes).
+    del proto.graph.value_info[:]
     proto.graph.output[0].name = CURRENT_FEATURES
     for node in proto.graph.node:
         node.output[:] = [CURRENT_FEATURES if name == split else name for name in node.output]

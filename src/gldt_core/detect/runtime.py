@@ -213,17 +213,11 @@ class GlobalDetector(_OnnxDetector):
         classes: Sequence[int] | None = None,
         feature_reuse: bool | None = None,
     ):
-        path = Path(model_path) if model_path is not None else DEFAULT_GLOBAL_MODEL
-        # With the split pair the full model is only checked here (opened unoptimised, 4x faster)
-        # and optimised later only if someone asks for ``session``.
-        self.feature_reuse: FeatureReuse | None = None
-        if optimize_graph and path.is_file():
-            self.feature_reuse = load_feature_reuse(path, providers, num_threads, feature_reuse)
-        inputs = self._open(
-            path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold,
-            optimize_graph and self.feature_reuse is None,
-        )
-        self._reopen_optimized = self.feature_reuse is not None
+        if feature_reuse and not optimize_graph:
+            raise DetectorConfigError("feature_reuse=True runs the model, but optimize_graph=False opens it for its geometry only")
+        # The model is checked first, opened unoptimised (4x faster): errors name the file given.
+        # With its split pair in use it is only optimised if someone asks for ``session``.
+        inputs = self._open(model_path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold, False)
         if len(inputs) not in (1, 2):
             raise DetectorConfigError(
                 f"{self.model_path}: has {len(inputs)} inputs; a global detector needs (previous, current) frames, each (1, 3, H, W)"
@@ -241,6 +235,13 @@ class GlobalDetector(_OnnxDetector):
             raise DetectorConfigError(f"{self.model_path}: long_side {self.long_side} must be a multiple of {self.multiple}")
         self._read_classes(classes)
         self.max_detections = int(max_detections)
+        self.feature_reuse: FeatureReuse | None = None
+        if optimize_graph:
+            self.feature_reuse = load_feature_reuse(self.model_path, providers, num_threads, feature_reuse)
+            if self.feature_reuse is None:  # the full model runs every pair: optimise it now, not on the first frame
+                self._session, _ = open_session(self.model_path, providers, num_threads, self.EXPECTATION, True)
+            else:
+                self._reopen_optimized = True
 
     def input_size(self, frame_w: int, frame_h: int) -> tuple[int, int]:
         """Network input ``(w, h)`` used for a frame of this size."""
@@ -271,6 +272,8 @@ class GlobalDetector(_OnnxDetector):
         the ROS graph. ``carry`` must come from the frame ``previous_bgr``; one of another input
         size (the frame size changed) is ignored and the previous frame processed afresh.
         """
+        if carry is not None and not isinstance(carry, GlobalCarry):
+            raise TypeError(f"carry must be the GlobalCarry an earlier detect_pair returned, got {type(carry).__name__}")
         current = ensure_bgr(current_bgr, "current frame")
         previous = current if previous_bgr is None else ensure_bgr(previous_bgr, "previous frame")
         if previous.shape != current.shape:

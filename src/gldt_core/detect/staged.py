@@ -32,7 +32,7 @@ def prepare_global_input(detector: Any, frame_bgr: np.ndarray) -> tuple[np.ndarr
     return letterbox(frame, input_w, input_h)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class GlobalCarry:
     """What one GD frame leaves for the next one: its letterboxed network input and, when the
     detector reuses features (:mod:`gldt_core.detect.feature_reuse`), the backbone features

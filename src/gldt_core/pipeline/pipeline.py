@@ -271,16 +271,16 @@ class GLDTPipeline:
             LOG.debug("frame %d: dropped %d invalid detection(s)", self._frame_index, invalid)
         return raw
 
-    def _detect_global(self, previous: np.ndarray, frame: np.ndarray) -> np.ndarray:
+    def _detect_global(
+        self, previous: np.ndarray, frame: np.ndarray, carry: GlobalCarry | None
+    ) -> tuple[np.ndarray, GlobalCarry | None]:
         """The global detector on ``(previous, frame)``, reusing what the previous GD frame left
-        (letterboxed input, backbone features) when the detector offers ``detect_pair`` (the
-        shipped one does; test doubles need not)."""
+        (``carry``: letterboxed input, backbone features) when the detector offers
+        ``detect_pair`` (the shipped one does; test doubles need not); returns this frame's carry."""
         detect_pair = getattr(self.global_detector, "detect_pair", None)
         if detect_pair is None:
-            return self.global_detector.detect(previous, frame)
-        carry, self._previous_carry = self._previous_carry, None  # stale if detect_pair raises
-        detections, self._previous_carry = detect_pair(previous, frame, carry)
-        return detections
+            return self.global_detector.detect(previous, frame), None
+        return detect_pair(previous, frame, carry)
 
     def process(self, frame: np.ndarray, t: float) -> np.ndarray:
         """Run one frame (HxWx3 uint8 BGR, ``t`` seconds); returns ``(M, 6)`` ``[x1,y1,x2,y2,id,score]``."""
@@ -295,15 +295,19 @@ class GLDTPipeline:
             predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
             plan = self.scheduler.plan_frame(t, self._size, predictions)
 
+        # The carry belongs to the previous frame; this frame's replaces it only once the frame
+        # is complete, together with ``_previous`` (a frame that raises leaves neither).
+        carry, self._previous_carry = self._previous_carry, None
+        next_carry = None
         if plan.mode is Mode.GLOBAL:
             with timer.stage("gd"):
-                raw = self._count_invalid(self._detect_global(previous, frame), 6)
+                raw, next_carry = self._detect_global(previous, frame, carry)
+                raw = self._count_invalid(raw, 6)
                 raw = filter_classes(raw, 6, self.config.detector.classes)
             detections = raw[:, :5]
             detection_rois = None
             self._global_frames += 1
         else:
-            self._previous_carry = None
             with timer.stage("ld"):
                 raw = self._count_invalid(self.local_detector.detect_rois(frame, plan.rois), 7)
                 raw = merge_local_detections(raw, self.config.detector.classes, self.config.detector.nms_iou)
@@ -332,6 +336,7 @@ class GLDTPipeline:
         else:
             np.copyto(self._previous, frame)
         timer.add("preprocess", time.perf_counter() - copy_start, count=False)
+        self._previous_carry = next_carry
         self._last_t = t
         self._last_plan = plan
         self._tracks = tracks

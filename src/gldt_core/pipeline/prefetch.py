@@ -34,7 +34,11 @@ class _End:
 
 
 class FramePrefetcher:
-    """Iterate ``frames`` up to ``depth`` items ahead in a daemon thread.
+    """Iterate ``frames`` ahead of the consumer in a daemon thread: ``depth`` items queued, plus
+    the one the thread holds while it waits for room. Use it as a context manager (or call
+    ``close``) so the thread stops with the consumer. The source must hand out a new array per
+    frame, as every ``gldt_core.data`` source does: a decoder that reused one buffer would
+    overwrite the frames waiting in the queue.
 
     ``fetch_seconds`` is the time the thread spent reading and decoding, for the report of where
     the time goes; the consumer's own waiting is what its loop measures around ``next``.
@@ -81,9 +85,14 @@ class FramePrefetcher:
         return self
 
     def __next__(self) -> Any:
-        if self._finished:
-            raise StopIteration
-        item = self._queue.get()
+        while True:
+            if self._finished:
+                raise StopIteration
+            try:
+                item = self._queue.get(timeout=0.1)  # wakes up to see a close() from another thread
+                break
+            except queue.Empty:
+                continue
         if isinstance(item, _End):
             self._finished = True
             self._thread.join()

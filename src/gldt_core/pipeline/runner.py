@@ -140,7 +140,8 @@ def run_frames(
     """Process every frame of ``frames`` (objects with ``index``, ``stamp``, ``image`` and
     optionally ``ground_truth``); ``on_frame(frame, tracks)`` is called after each (overlay,
     progress bar). Output frame numbers are ``index + 1`` (MOTChallenge is 1-based).
-    ``prefetch`` > 0 reads that many frames ahead in a background thread (same frames, same tracks)."""
+    ``prefetch`` > 0 reads that many frames ahead in a background thread (same frames, same tracks;
+    each frame must own its image array, see :class:`~gldt_core.pipeline.prefetch.FramePrefetcher`)."""
     recorder = _Recorder(pipeline, on_frame, collect_ground_truth)
     if prefetch < 0:
         raise ValueError(f"prefetch must be >= 0, got {prefetch}")
