@@ -41,6 +41,15 @@ def test_global_and_local_models_are_timed_against_the_first(capsys: pytest.Capt
     assert "no feature reuse" not in lines[3], "the single-frame model has nothing to reuse"
 
 
+def test_parts_of_a_split_model_are_skipped_not_timed(capsys: pytest.CaptureFixture[str]) -> None:
+    from gldt_core.detect.feature_reuse import features_path, reuse_path
+
+    global_ = shipped_model_path("global")
+    assert main(["bench", "latency", str(features_path(global_)), str(reuse_path(global_)), "--rounds", "1"]) == 2
+    out, err = capsys.readouterr()
+    assert out.count("skipping") == 2 and "no detector model to time" in err
+
+
 def test_a_missing_or_broken_model_is_one_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     missing = tmp_path / "absent.onnx"
     assert main(["bench", "latency", str(missing)]) == 2

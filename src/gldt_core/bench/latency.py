@@ -95,7 +95,15 @@ def interleaved_medians(calls: list[Callable[[], Any]], rounds: int, warmup: int
 def _run(args: argparse.Namespace) -> int:
     if args.rounds < 1 or args.threads < 1:
         raise ValueError(f"--rounds and --threads must be >= 1, got {args.rounds} and {args.threads}")
-    rows = [row for path in args.models for row in detector_calls(path, args.threads)]
+    models = []
+    for path in args.models:  # e.g. a shell glob over models/ also lists the split pairs' parts
+        if path.name.endswith((".features.onnx", ".reuse.onnx")):
+            print(f"skipping {path}: a part of a split AM-YOLO (gldt export --feature-reuse), timed with the model it was split from")
+        else:
+            models.append(path)
+    if not models:
+        raise ValueError("no detector model to time among the files given")
+    rows = [row for path in models for row in detector_calls(path, args.threads)]
     labels, kinds, calls = zip(*rows)
     medians = interleaved_medians(list(calls), args.rounds)
     print(f"latency, median of {args.rounds} interleaved rounds, onnxruntime threads={args.threads} "
