@@ -32,14 +32,19 @@ def local_detector() -> LocalDetector:
 
 
 def test_shipped_models_exist_with_cards_and_fit_the_size_budget() -> None:
-    for kind in ("global", "global_nostff", "local", "global_balanced", "local_balanced"):
+    for kind in ("global", "global_nostff", "local", "global_balanced", "local_balanced", "global_nostff_balanced"):
         path = shipped_model_path(kind)
         assert path.is_file() and path.stat().st_size <= 15 * 1024 * 1024
         card = json.loads(path.with_suffix(".json").read_text())
         assert card["opset"] >= 17 and card["class_ids"] == [1, 2, 3]
         expected_inputs = {"global": ["previous", "current"], "global_balanced": ["previous", "current"], "local": ["images"], "local_balanced": ["images"]}
         assert card["inputs"] == expected_inputs.get(kind, card["inputs"])
-    assert json.loads(shipped_model_path("global_balanced").with_suffix(".json").read_text())["training_data"]["synthetic_share"] == 0.5
+    for kind in ("global_balanced", "global_nostff_balanced"):
+        assert json.loads(shipped_model_path(kind).with_suffix(".json").read_text())["training_data"]["synthetic_share"] == 0.5
+    twin = json.loads(shipped_model_path("global_nostff_balanced").with_suffix(".json").read_text())["training_config"]["model"]
+    assert twin["stff_levels"] == [] and twin["channels"] == json.loads(
+        shipped_model_path("global_balanced").with_suffix(".json").read_text()
+    )["training_config"]["model"]["channels"], "the no-STFF twin differs from the balanced AM-YOLO only by STFF"
 
 
 def test_global_detect_contract(global_detector: GlobalDetector) -> None:

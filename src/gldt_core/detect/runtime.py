@@ -363,11 +363,14 @@ class LocalDetector(_OnnxDetector):
 
 
 def shipped_model_path(kind: str) -> Path:
-    """Path of a shipped model: ``global``, ``global_nostff``, ``local``, ``global_balanced`` or ``local_balanced``."""
+    """Path of a shipped model: ``global``, ``global_nostff``, ``local``, ``global_balanced``, ``local_balanced``
+    or ``global_nostff_balanced``."""
     names = {
         "global": DEFAULT_GLOBAL_MODEL, "local": DEFAULT_LOCAL_MODEL, "global_nostff": MODELS_DIR / "global_nostff.onnx",
-        # Opt-in pair trained with half of the draws synthetic (configs/pipeline_balanced_models.yaml).
+        # Opt-in pair trained with half of the draws synthetic (configs/pipeline_balanced_models.yaml),
+        # and the balanced AM-YOLO's twin without STFF (the STFF ablation on that data mix).
         "global_balanced": MODELS_DIR / "global_amyolo_balanced.onnx", "local_balanced": MODELS_DIR / "local_p2_balanced.onnx",
+        "global_nostff_balanced": MODELS_DIR / "global_nostff_balanced.onnx",
     }
     if kind not in names:
         raise ValueError(f"unknown shipped model {kind!r}; choose one of {sorted(names)}")
