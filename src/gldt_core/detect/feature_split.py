@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,6 +41,7 @@ from .feature_reuse import (
     features_path,
     reuse_path,
 )
+from .window_rewrite import output_difference
 
 #: Largest difference accepted between the original model and the split pair (they are equal in
 #: practice: the same kernels on the same numbers, one frame per batch instead of two).
@@ -170,16 +170,6 @@ def _features_model(reuse_file: Path, split: str, out: Path) -> None:
     onnx.save(proto, str(out))
 
 
-def _max_difference(a: np.ndarray, b: np.ndarray) -> float:
-    """Max absolute difference; NaN in the same places counts as equal, elsewhere as infinite."""
-    if a.shape != b.shape:
-        raise FeatureSplitError(f"split models changed an output shape: {a.shape} -> {b.shape}")
-    if not np.array_equal(np.isnan(a), np.isnan(b)):
-        return math.inf
-    finite = ~np.isnan(a)
-    return float(np.abs(a[finite] - b[finite]).max(initial=0.0))
-
-
 def compare_split(original: Path, features_file: Path, reuse_file: Path, seed: int = 0) -> tuple[float, int, int]:
     """``(max difference, channels, stride)`` of the split pair against the original model.
 
@@ -203,7 +193,11 @@ def compare_split(original: Path, features_file: Path, reuse_file: Path, seed: i
         (previous_features,) = features.run(None, {CURRENT_INPUT: previous})
         detections, current_features = reuse.run(None, {CURRENT_INPUT: current, PREVIOUS_FEATURES: previous_features})
         (fresh_features,) = features.run(None, {CURRENT_INPUT: current})
-        worst = max(worst, _max_difference(expected, detections), _max_difference(fresh_features, current_features))
+        worst = max(
+            worst,
+            output_difference(expected, detections, "splitting the model", FeatureSplitError),
+            output_difference(fresh_features, current_features, "splitting the model", FeatureSplitError),
+        )
         channels = int(previous_features.shape[1])
         stride = height // int(previous_features.shape[2])
         if stride * previous_features.shape[2] != height or stride * previous_features.shape[3] != width:

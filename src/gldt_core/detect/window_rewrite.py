@@ -149,9 +149,22 @@ def _random_feeds(session: Any, sizes: list[tuple[int, int]], seed: int) -> list
     return feeds
 
 
+def output_difference(
+    before: np.ndarray, after: np.ndarray, what: str = "rewritten model", error: type[ValueError] = ValueError
+) -> float:
+    """Max absolute difference between an output of a model and the same output of its rewrite
+    (NaN in the same places counts as equal; NaN in different places as an infinite difference).
+    A changed shape raises ``error``, naming ``what`` changed it."""
+    if before.shape != after.shape:
+        raise error(f"{what} changed an output shape: {before.shape} -> {after.shape}")
+    if not np.array_equal(np.isnan(before), np.isnan(after)):
+        return math.inf  # NaN where the original had a number, or the other way round
+    finite = ~np.isnan(before)
+    return float(np.abs(before[finite] - after[finite]).max(initial=0.0))
+
+
 def compare_models(original: Path | str, rewritten: Path | str, sizes: list[tuple[int, int]], seed: int = 0) -> float:
-    """Max absolute output difference of two ONNX models on the same random inputs of each size
-    (NaN in the same places counts as equal; NaN in different places as an infinite difference)."""
+    """Max :func:`output_difference` of two ONNX models on the same random inputs of each size."""
     import onnxruntime as ort
 
     sessions = [ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]) for path in (original, rewritten)]
@@ -159,12 +172,7 @@ def compare_models(original: Path | str, rewritten: Path | str, sizes: list[tupl
     for feed in _random_feeds(sessions[0], sizes, seed):
         before, after = (session.run(None, feed) for session in sessions)
         for a, b in zip(before, after):
-            if a.shape != b.shape:
-                raise ValueError(f"rewritten model changed an output shape: {a.shape} -> {b.shape}")
-            if not np.array_equal(np.isnan(a), np.isnan(b)):
-                return math.inf  # NaN where the original had a number, or the other way round
-            finite = ~np.isnan(a)
-            worst = max(worst, float(np.abs(a[finite] - b[finite]).max(initial=0.0)))
+            worst = max(worst, output_difference(a, b))
     return worst
 
 
