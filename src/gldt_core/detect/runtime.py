@@ -19,7 +19,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from .feature_reuse import FeatureReuse, load_feature_reuse
+from .feature_reuse import FeatureReuse, features_path, load_feature_reuse, reuse_path
 from .postprocess import ensure_bgr, rect_input_size
 from .staged import GlobalCarry
 
@@ -215,9 +215,15 @@ class GlobalDetector(_OnnxDetector):
     ):
         if feature_reuse and not optimize_graph:
             raise DetectorConfigError("feature_reuse=True runs the model, but optimize_graph=False opens it for its geometry only")
-        # The model is checked first, opened unoptimised (4x faster): errors name the file given.
-        # With its split pair in use it is only optimised if someone asks for ``session``.
-        inputs = self._open(model_path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold, False)
+        # Where a split pair lies next to the model, the model is checked first, opened unoptimised
+        # (4x faster) so errors name the file given, and optimised only if the pair cannot be used
+        # or someone asks for ``session``. Without one it is opened optimised straight away.
+        path = Path(model_path) if model_path is not None else DEFAULT_GLOBAL_MODEL
+        split_first = optimize_graph and feature_reuse is not False and features_path(path).is_file() and reuse_path(path).is_file()
+        inputs = self._open(
+            model_path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold,
+            optimize_graph and not split_first,
+        )
         if len(inputs) not in (1, 2):
             raise DetectorConfigError(
                 f"{self.model_path}: has {len(inputs)} inputs; a global detector needs (previous, current) frames, each (1, 3, H, W)"
@@ -236,8 +242,9 @@ class GlobalDetector(_OnnxDetector):
         self._read_classes(classes)
         self.max_detections = int(max_detections)
         self.feature_reuse: FeatureReuse | None = None
-        if optimize_graph:
+        if split_first or (optimize_graph and feature_reuse):  # required but absent: a clear error
             self.feature_reuse = load_feature_reuse(self.model_path, providers, num_threads, feature_reuse)
+        if split_first:
             if self.feature_reuse is None:  # the full model runs every pair: optimise it now, not on the first frame
                 self._session, _ = open_session(self.model_path, providers, num_threads, self.EXPECTATION, True)
             else:
