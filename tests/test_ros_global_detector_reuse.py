@@ -22,7 +22,7 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> Non
 
     from gldt_core.data import open_source
     from gldt_core.detect import GlobalDetector
-    from gldt_core.detect.staged import detect_global_prepared, prepare_global_input
+    from gldt_core.detect.staged import detect_global_streamed, prepare_global_input
     from gldt_ros.convert import bgr_to_image
     from gldt_ros.nodes.global_detector import GlobalDetectorNode
 
@@ -62,7 +62,7 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> Non
             node.on_pair(pair(previous, current))
         assert len(runs) == 2  # the first pair and the one after the gap
         for (previous, current), message in zip(sequence, published):
-            expected = detect_global_prepared(
+            expected, _ = detect_global_streamed(
                 full, prepared[previous][0], prepared[current][0], prepared[current][1], width, height
             )
             boxes = np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections])

@@ -1,9 +1,8 @@
 """The detectors split at the process boundary of the ROS graph.
 
 ``GlobalDetector.detect`` = :func:`prepare_global_input` on both frames (letterbox to the network
-input) + :func:`detect_global_prepared` (:func:`detect_global_streamed` when the previous GD
-frame's features are at hand); ``LocalDetector.detect_rois`` = ``LocalDetector.crop``
-on each ROI + :func:`detect_local_crops`. The ROS graph runs the first half in
+input) + :func:`detect_global_streamed` (given the previous GD frame's features when at hand);
+``LocalDetector.detect_rois`` = ``LocalDetector.crop`` on each ROI + :func:`detect_local_crops`. The ROS graph runs the first half in
 ``frame_pair_buffer`` (the only node holding full frames) and the second half in the detector
 nodes, and the offline wrappers call these same functions, so both give identical boxes.
 """
@@ -42,18 +41,6 @@ class GlobalCarry:
     features: np.ndarray | None = None
 
 
-def detect_global_prepared(
-    detector: Any,
-    previous_input: np.ndarray,
-    current_input: np.ndarray,
-    mapping: Letterbox,
-    frame_width: int,
-    frame_height: int,
-) -> np.ndarray:
-    """Run AM-YOLO on an already letterboxed pair; ``(N, 6)`` float32 boxes in full-frame pixels."""
-    return detect_global_streamed(detector, previous_input, current_input, mapping, frame_width, frame_height)[0]
-
-
 def detect_global_streamed(
     detector: Any,
     previous_input: np.ndarray,
@@ -63,7 +50,8 @@ def detect_global_streamed(
     frame_height: int,
     previous_features: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """:func:`detect_global_prepared` that takes the previous frame's features and returns the current's.
+    """Run AM-YOLO on an already letterboxed pair: ``(N, 6)`` float32 boxes in full-frame pixels,
+    and the current frame's features for the next GD frame.
 
     ``previous_features`` must have been returned for ``previous_input`` (the caller keys them by
     frame); ones of the wrong shape are ignored and recomputed. The features returned are None
