@@ -212,3 +212,17 @@ def test_export_cli_feature_reuse_arguments(tmp_path: Path, capsys) -> None:
         assert main(["export", model, *arguments]) == 2
         assert message in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_model_written_over_gets_its_split_pair_refreshed(tmp_path: Path, capsys) -> None:
+    """`gldt export` writing a model where a split pair lies (int8, a rewrite) splits the new file."""
+    from gldt_core.cli.export import _refresh_or_drop_split_pair
+
+    onnx = pytest.importorskip("onnx")
+    model = _copy_model(tmp_path)
+    proto = onnx.load(str(model))
+    proto.producer_version = proto.producer_version + "-reexported"  # another file, the old pair stale
+    onnx.save(proto, str(model))
+    _refresh_or_drop_split_pair(model)
+    assert "wrote global_amyolo.features.onnx" in capsys.readouterr().out
+    assert GlobalDetector(model, num_threads=1, feature_reuse=True).feature_reuse is not None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -34,3 +35,22 @@ def test_int8_local_model_finds_the_same_drone(tmp_path: Path) -> None:
     assert len(fp32) and len(int8)
     assert box_iou(fp32[:1, :4], int8[:1, :4])[0, 0] > 0.7
     assert int8[0, 5] == fp32[0, 5]
+
+
+@pytest.mark.skipif(not (ROOT / "videos").is_dir(), reason=f"calibration needs the real Halmstad clips in {ROOT}")
+def test_int8_export_over_am_yolo_drops_the_split_pair_it_made_stale(tmp_path: Path, capsys) -> None:
+    """The quantized graph cannot be split (its frame batch sits between QDQ nodes), so the old
+    pair, made from the fp32 file, is removed instead of left to warn on every start."""
+    from gldt_core.cli.export import _refresh_or_drop_split_pair
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.feature_reuse import features_path, reuse_path
+
+    source = shipped_model_path("global")
+    for path in (source, source.with_suffix(".json"), features_path(source), reuse_path(source)):
+        shutil.copy(path, tmp_path / path.name)
+    model = tmp_path / source.name
+    quantize_model(model, model, ROOT, count=2)
+    _refresh_or_drop_split_pair(model)
+    assert "removed global_amyolo.features.onnx and global_amyolo.reuse.onnx" in capsys.readouterr().out
+    assert not features_path(model).exists() and not reuse_path(model).exists()
+    assert GlobalDetector(model, num_threads=1).feature_reuse is None

@@ -167,3 +167,13 @@ def test_detect_pair_reuses_the_previous_input_with_identical_boxes(global_detec
     np.testing.assert_array_equal(stale, global_detector.detect(frames[1], frames[2]))
     assert second_carry.input.shape == first_carry.input.shape
 
+
+
+def test_every_detector_session_stops_spinning_when_a_run_ends(global_detector: GlobalDetector, local_detector: LocalDetector) -> None:
+    """Several sessions share two cores (the split pair, GD and LD, the graph's processes): a
+    session's idle threads must not busy-wait on the core the next one needs."""
+    reuse = global_detector.feature_reuse
+    assert reuse is not None  # the shipped AM-YOLO has its split pair
+    sessions = [local_detector.session, global_detector.session, reuse.features_session, reuse.reuse_session]
+    for session in sessions:
+        assert session.get_session_options().get_session_config_entry("session.force_spinning_stop") == "1"

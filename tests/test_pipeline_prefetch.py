@@ -95,6 +95,25 @@ def test_depth_must_be_positive() -> None:
         FramePrefetcher(iter([]), depth=0)
 
 
+def test_frames_read_counts_what_the_thread_read_not_what_was_taken() -> None:
+    """The per-frame read time divides by the frames read: those read ahead and never taken too."""
+    produced: list[int] = []
+
+    def source():
+        for index in range(20):
+            produced.append(index)
+            yield index
+
+    ahead = FramePrefetcher(source(), depth=3)
+    assert next(ahead) == 0
+    deadline = time.monotonic() + 10
+    while len(produced) < 5 and time.monotonic() < deadline:  # 1 taken, 3 queued, 1 waiting
+        time.sleep(0.01)
+    ahead.close()
+    assert len(produced) == 5
+    assert ahead.frames_read == len(produced)
+
+
 def test_run_frames_with_prefetch_gives_the_same_tracks() -> None:
     from gldt_core.data import open_source
     from gldt_core.pipeline import GLDTPipeline

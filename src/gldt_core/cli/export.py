@@ -52,6 +52,27 @@ def _write_feature_reuse(model: "Path") -> None:
     )
 
 
+def _refresh_or_drop_split_pair(model: "Path") -> None:
+    """After ``model`` was (over)written: a split pair next to it belongs to the file it replaced.
+
+    Split the new file instead; where that cannot be done (a quantized graph the split does not
+    recognise, outputs that would change), remove the old pair, so that the runtime runs the new
+    model whole rather than warn about a stale pair on every start.
+    """
+    from gldt_core.detect.feature_reuse import features_path, reuse_path
+    from gldt_core.detect.feature_split import FeatureSplitError
+
+    stale = [path for path in (features_path(model), reuse_path(model)) if path.is_file()]
+    if not stale:
+        return
+    try:
+        _write_feature_reuse(model)
+    except FeatureSplitError as error:
+        for path in stale:
+            path.unlink()
+        print(f"removed {' and '.join(p.name for p in stale)}: split from the file {model} replaced, and the new one cannot be split ({error})")
+
+
 def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -88,6 +109,7 @@ def _run(args: argparse.Namespace) -> int:
 
         out = quantize_model(args.checkpoint, args.out, args.calibration_root or str(halmstad_root()))
         print(f"wrote {out} ({out.stat().st_size / 1e6:.2f} MB)")
+        _refresh_or_drop_split_pair(out)
         return 0
 
     try:

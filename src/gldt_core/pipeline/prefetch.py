@@ -40,8 +40,10 @@ class FramePrefetcher:
     frame, as every ``gldt_core.data`` source does: a decoder that reused one buffer would
     overwrite the frames waiting in the queue.
 
-    ``fetch_seconds`` is the time the thread spent reading and decoding, for the report of where
-    the time goes; the consumer's own waiting is what its loop measures around ``next``.
+    ``fetch_seconds`` is the time the thread spent reading and decoding and ``frames_read`` how
+    many frames that bought, for the report of where the time goes; both include frames read ahead
+    that the consumer never took (it stopped early), so divide one by the other, not by the frames
+    processed. The consumer's own waiting is what its loop measures around ``next``.
     """
 
     def __init__(self, frames: Iterable[Any], depth: int = 2):
@@ -52,6 +54,7 @@ class FramePrefetcher:
         self._stop = threading.Event()
         self._finished = False
         self.fetch_seconds = 0.0
+        self.frames_read = 0
         self._thread = threading.Thread(target=self._read, name="gldt-frame-prefetch", daemon=True)
         self._thread.start()
 
@@ -78,6 +81,7 @@ class FramePrefetcher:
                 return
             finally:
                 self.fetch_seconds += time.perf_counter() - start
+            self.frames_read += 1
             if not self._put(item):
                 return
 

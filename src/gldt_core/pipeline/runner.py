@@ -108,7 +108,8 @@ class _Recorder:
         if self.on_frame is not None:
             self.on_frame(frame, tracks)
 
-    def result(self, seconds: float, prefetch_seconds: float | None = None) -> RunResult:
+    def result(self, seconds: float, prefetch: tuple[float, int] | None = None) -> RunResult:
+        """The run's result; ``prefetch`` is the reading thread's (seconds, frames read), if one ran."""
         count = len(self.modes)
         table = np.vstack(self.rows) if self.rows else np.zeros((0, 10))
         gt_table = None
@@ -124,7 +125,7 @@ class _Recorder:
             ground_truth=gt_table,
             stage_ms={name: ms for name, ms, _, _ in self.pipeline.timer.breakdown(count)},
             reinitialisations=self.pipeline.state.reinitialisations,
-            prefetch_ms=None if prefetch_seconds is None else 1000.0 * prefetch_seconds / max(count, 1),
+            prefetch_ms=None if prefetch is None else 1000.0 * prefetch[0] / max(prefetch[1], 1),
         )
 
 
@@ -156,7 +157,7 @@ def run_frames(
         for frame in _timed(ahead, pipeline, max_frames):
             recorder.step(frame)
         seconds = time.perf_counter() - start
-    return recorder.result(seconds, ahead.fetch_seconds)
+    return recorder.result(seconds, (ahead.fetch_seconds, ahead.frames_read))
 
 
 def run_frames_interleaved(
