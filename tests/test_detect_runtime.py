@@ -168,7 +168,6 @@ def test_detect_pair_reuses_the_previous_input_with_identical_boxes(global_detec
     assert second_carry.input.shape == first_carry.input.shape
 
 
-
 def test_every_detector_session_stops_spinning_when_a_run_ends(global_detector: GlobalDetector, local_detector: LocalDetector) -> None:
     """Several sessions share two cores (the split pair, GD and LD, the graph's processes): a
     session's idle threads must not busy-wait on the core the next one needs."""

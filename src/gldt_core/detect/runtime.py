@@ -93,7 +93,7 @@ def open_session(
     # pair runs two sessions per frame, GD and LD alternate, and in the ROS graph each detector is
     # its own process beside the decoder. The threads of the session that just finished then spin
     # on the core the next session or process needs. Stopping them when a run ends took AM-YOLO
-    # from 42.8 to 22.7 ms a GD-stretch frame in `gldt bench latency` at 2 threads (README).
+    # from about 43 to 21 ms a GD-stretch frame in `gldt bench latency` at 2 threads (README).
     options.add_session_config_entry("session.force_spinning_stop", "1")
     if not optimize_graph:
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_DISABLE_ALL
