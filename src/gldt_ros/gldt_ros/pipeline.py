@@ -24,7 +24,7 @@ from typing import Callable, Sequence
 
 from gldt_ros.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, SINGLE, background_executor, executor_kind
-from gldt_ros.shm_cleanup import remove_dead_segments
+from gldt_ros.shm_cleanup import MIN_AGE_S, remove_dead_segments
 from gldt_ros.stack_dump import STACK_DUMP_SIGNAL
 from gldt_ros.teardown_limit import TEARDOWN_LIMIT_S, TEARDOWN_TIMEOUT_EXIT
 
@@ -159,6 +159,9 @@ class NodeProcesses:
         self.supervising = False
         self.spare: subprocess.Popen[bytes] | None = None
         self._last_restart = float("-inf")
+        # When to look for dead segments again: a node killed within MIN_AGE_S of the last look
+        # left a lock file too young for it to be told from a process that is starting up.
+        self._segments_due: float | None = None
         self._lock = threading.Lock()
         for name in NODES:
             self._start(name)
@@ -226,6 +229,7 @@ class NodeProcesses:
         before the new process starts (the driver notes which endpoints were the dead one's), and
         outside this object's lock, which the driver's own waits take.
         """
+        self._clean_segments_if_due()
         with self._lock:
             if not self.supervising:
                 return []
@@ -254,7 +258,17 @@ class NodeProcesses:
             self.keep_spare()
         if restarted:
             report_removed_segments()
+            self._segments_due = time.monotonic() + MIN_AGE_S
         return restarted
+
+    def _clean_segments_if_due(self) -> None:
+        """Look again for segments of nodes that died, once their lock files are old enough to be
+        judged (:data:`~gldt_ros.shm_cleanup.MIN_AGE_S` after the last restart)."""
+        due = self._segments_due
+        if due is None or time.monotonic() < due:
+            return
+        self._segments_due = None
+        report_removed_segments()
 
     def stop(self, grace_s: float = 10.0) -> int:
         """SIGINT every child, escalate to SIGTERM/SIGKILL; return the number that did not exit cleanly."""
@@ -287,6 +301,9 @@ class NodeProcesses:
             elif code not in (0, -signal.SIGINT, 130):
                 print(f"pipeline: node {name} exited with code {code}", flush=True)
                 unclean += 1
+        due = self._segments_due
+        if due is not None:  # a node died shortly before: let its lock file age enough to be judged
+            time.sleep(max(0.0, min(due - time.monotonic(), MIN_AGE_S)))
         report_removed_segments()
         return unclean
 

@@ -29,8 +29,11 @@ SHM_DIRECTORY = Path("/dev/shm")
 #: Lock files of data segments (Fast DDS 2.x names them ``fastrtps_``, 3.x ``fastdds_``).
 SEGMENT_LOCK = re.compile(r"^(fastrtps|fastdds)_[0-9a-f]{16}_el$")
 
-#: Lock files younger than this are left alone (see the module docstring).
-MIN_AGE_S = 5.0
+#: Lock files younger than this are left alone (see the module docstring). Fast DDS takes the lock
+#: right after creating the file, so a second is a wide margin; ``pipeline`` looks again this long
+#: after a restart, and waits for that look at shutdown, so a node killed early in its life (its
+#: lock file still young at the first look) does not leak its segment.
+MIN_AGE_S = 2.0
 
 
 def lock_is_held(lock_file: Path) -> bool:
