@@ -48,6 +48,7 @@ def children_of(processes: dict[str, subprocess.Popen[bytes]]) -> NodeProcesses:
     children.restarts = {name: 0 for name in processes}
     children.supervising = True
     children.spare = None
+    children._segments_due = None
     children._lock = threading.Lock()
     return children
 
