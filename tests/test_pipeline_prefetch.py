@@ -112,6 +112,7 @@ def test_frames_read_counts_what_the_thread_read_not_what_was_taken() -> None:
     ahead.close()
     assert len(produced) == 5
     assert ahead.frames_read == len(produced)
+    assert ahead.read_ms_per_frame == pytest.approx(1000.0 * ahead.fetch_seconds / len(produced))
 
 
 def test_run_frames_with_prefetch_gives_the_same_tracks() -> None:

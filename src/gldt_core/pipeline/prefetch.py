@@ -41,9 +41,9 @@ class FramePrefetcher:
     overwrite the frames waiting in the queue.
 
     ``fetch_seconds`` is the time the thread spent reading and decoding and ``frames_read`` how
-    many frames that bought, for the report of where the time goes; both include frames read ahead
-    that the consumer never took (it stopped early), so divide one by the other, not by the frames
-    processed. The consumer's own waiting is what its loop measures around ``next``.
+    many frames that bought; :attr:`read_ms_per_frame` is the one over the other, for the report of
+    where the time goes. Both count frames read ahead that the consumer never took (it stopped
+    early). The consumer's own waiting is what its loop measures around ``next``.
     """
 
     def __init__(self, frames: Iterable[Any], depth: int = 2):
@@ -84,6 +84,11 @@ class FramePrefetcher:
             self.frames_read += 1
             if not self._put(item):
                 return
+
+    @property
+    def read_ms_per_frame(self) -> float:
+        """Milliseconds the thread spent on each frame it read (0 before the first)."""
+        return 1000.0 * self.fetch_seconds / max(self.frames_read, 1)
 
     def __iter__(self) -> Iterator[Any]:
         return self

@@ -108,8 +108,8 @@ class _Recorder:
         if self.on_frame is not None:
             self.on_frame(frame, tracks)
 
-    def result(self, seconds: float, prefetch: tuple[float, int] | None = None) -> RunResult:
-        """The run's result; ``prefetch`` is the reading thread's (seconds, frames read), if one ran."""
+    def result(self, seconds: float, prefetch_ms: float | None = None) -> RunResult:
+        """The run's result; ``prefetch_ms`` is the reading thread's time per frame, if one ran."""
         count = len(self.modes)
         table = np.vstack(self.rows) if self.rows else np.zeros((0, 10))
         gt_table = None
@@ -125,7 +125,7 @@ class _Recorder:
             ground_truth=gt_table,
             stage_ms={name: ms for name, ms, _, _ in self.pipeline.timer.breakdown(count)},
             reinitialisations=self.pipeline.state.reinitialisations,
-            prefetch_ms=None if prefetch is None else 1000.0 * prefetch[0] / max(prefetch[1], 1),
+            prefetch_ms=prefetch_ms,
         )
 
 
@@ -157,7 +157,7 @@ def run_frames(
         for frame in _timed(ahead, pipeline, max_frames):
             recorder.step(frame)
         seconds = time.perf_counter() - start
-    return recorder.result(seconds, (ahead.fetch_seconds, ahead.frames_read))
+    return recorder.result(seconds, ahead.read_ms_per_frame)
 
 
 def run_frames_interleaved(
