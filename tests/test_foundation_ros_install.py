@@ -90,14 +90,18 @@ def test_fast_dds_loads_the_shipped_profile_without_a_parser_error(tmp_path: Pat
     assert "XMLPARSER" in outputs[misspelt] and "healthy_check_timeout" in outputs[misspelt]
 
 
-def test_node_processes_get_the_malloc_settings_unless_the_user_set_them_or_opted_out(monkeypatch) -> None:
+def test_node_processes_get_the_memory_settings_unless_the_user_set_them_or_opted_out(monkeypatch) -> None:
+    from gldt_ros.heap_trim import HEAP_TRIM_PERIOD_ENV
     from gldt_ros.pipeline import NODE_MALLOC_SETTINGS, node_environment, parse_args
 
     for key in NODE_MALLOC_SETTINGS:
         monkeypatch.delenv(key, raising=False)
     assert parse_args([]).tune_malloc and not parse_args(["--default-malloc"]).tune_malloc
+    monkeypatch.delenv("MALLOC_MMAP_THRESHOLD_", raising=False)
     tuned = node_environment(tune_malloc=True)
     assert all(tuned[key] == value for key, value in NODE_MALLOC_SETTINGS.items())
+    assert float(tuned[HEAP_TRIM_PERIOD_ENV]) > 0, "the nodes trim their heaps"
+    assert "MALLOC_MMAP_THRESHOLD_" not in tuned, "a fixed mmap threshold makes every frame buffer fault its pages in"
     assert not set(NODE_MALLOC_SETTINGS) & set(node_environment(tune_malloc=False))
     monkeypatch.setenv("MALLOC_ARENA_MAX", "8")
     assert node_environment(tune_malloc=True)["MALLOC_ARENA_MAX"] == "8", "a value the user exported wins"

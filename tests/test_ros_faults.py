@@ -173,8 +173,10 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
     # The 150-frame bag replays in 4-10 s depending on the machine: kill early enough that the
     # kill lands mid-replay on a fast machine (at 4 s it could land after the last frame). On a
     # slow one it may land before the first frame, which the driver must handle just the same.
+    # --spare-delay 0: the spare must be warm before the kill for the restart to use it.
     run = run_with_kill(
-        victim, REPO / "bags" / "halmstad_v_drone_001", record, [str(PIPELINE)], env=isolated_ros_env(), kill_after_s=1.5
+        victim, REPO / "bags" / "halmstad_v_drone_001", record, [str(PIPELINE), "--spare-delay", "0"],
+        env=isolated_ros_env(), kill_after_s=1.5,
     )
     text = run.text
     assert run.returncode == 0, text

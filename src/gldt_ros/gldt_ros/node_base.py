@@ -25,6 +25,7 @@ from gldt_ros import qos, topics
 from gldt_ros.dds_profile import use_frames_profile_if_shipped
 from gldt_ros.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_node
 from gldt_ros.graph_links import link_key_values, own_link_counts
+from gldt_ros.heap_trim import start_heap_trimming, trim_period_from_env
 from gldt_ros.log_throttle import LogThrottle
 from gldt_ros.params import SCHEMA, ParamSpec
 from gldt_ros.stack_dump import dump_stacks_on_request
@@ -167,12 +168,15 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     node that ``publishes_frames`` (images, pairs, crops: messages of a MiB or more) swaps the
     graph's shipped DDS profile for its large-segment twin (:mod:`gldt_ros.dds_profile`). The
     executor is ``$GLDT_EXECUTOR``'s (:mod:`gldt_ros.executor`; rclpy's events executor by default).
+    ``$GLDT_HEAP_TRIM_PERIOD``, which ``pipeline`` sets, hands freed heap pages back to the OS that
+    often (:mod:`gldt_ros.heap_trim`).
     """
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
     try:
         executor = executor_kind()
+        start_heap_trimming(trim_period_from_env())
     except ValueError as error:
         print(f"[gldt] cannot start: {error}", flush=True)
         return 1

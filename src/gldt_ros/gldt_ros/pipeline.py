@@ -24,6 +24,7 @@ from typing import Callable, Sequence
 
 from gldt_ros.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, SINGLE, background_executor, executor_kind
+from gldt_ros.heap_trim import DEFAULT_PERIOD_S, HEAP_TRIM_PERIOD_ENV, start_heap_trimming
 from gldt_ros.shm_cleanup import MIN_AGE_S, remove_dead_segments
 from gldt_ros.stack_dump import STACK_DUMP_SIGNAL
 from gldt_ros.teardown_limit import TEARDOWN_LIMIT_S, TEARDOWN_TIMEOUT_EXIT
@@ -41,17 +42,16 @@ def default_params_file() -> Path:
         return Path(__file__).resolve().parents[1] / "config" / "gldt.yaml"
 
 
-#: glibc malloc settings for the node processes, applied where the user has not set them. A node
-#: handles frames of a MiB or more (640x512 BGR: 960 KiB; 1080p: 6 MiB) on several threads. With
-#: the defaults, glibc raises its mmap threshold after the first large free. It then serves frames
-#: from the heap and per-thread arenas, which it rarely gives back, so resident memory climbs in
-#: steps over a long run. A fixed 512 KiB threshold maps every frame-sized buffer and unmaps it on
-#: free; two arenas bound the per-thread growth. A/B in one session, 10 min at 30 Hz
-#: (gldt_ros.soak_graph, growth from 60 s on): frame_pair_buffer +17.0 % with the defaults and
-#: +0.7 % with these settings, at about the same throughput (71 % vs 74 % of the frames answered,
-#: median latency 57 vs 48 ms). A 256 KiB threshold also held memory flat, but it raised the median
-#: latency by 38 ms.
-NODE_MALLOC_SETTINGS = {"MALLOC_MMAP_THRESHOLD_": "524288", "MALLOC_ARENA_MAX": "2"}
+#: Memory settings for the node processes, applied where the user has not set them. A node handles
+#: buffers of a MiB or more every frame (a decoded 1080p frame is 6 MiB). With glibc's defaults
+#: they come from the heap, which only shrinks from its top, so resident memory climbs in steps
+#: over a long run (frame_pair_buffer +17.0 % over 10 min at 30 Hz, gldt_ros.soak_graph). Each node
+#: therefore calls malloc_trim every second (gldt_ros.heap_trim), which returns free pages from
+#: anywhere in the heap, and two arenas bound the per-thread growth. The former cure, a fixed 512 KiB
+#: mmap threshold (MALLOC_MMAP_THRESHOLD_=524288), gave every such buffer fresh pages to fault in:
+#: the 1080p bag's lockstep replay ran at 27.7 fps with it and 34.5-35.2 fps with trimming, two
+#: alternated runs each (2026-12-02); the memory figures are in the README (Results).
+NODE_MALLOC_SETTINGS = {"MALLOC_ARENA_MAX": "2", HEAP_TRIM_PERIOD_ENV: f"{DEFAULT_PERIOD_S:g}"}
 
 
 def node_environment(tune_malloc: bool, executor: str | None = None) -> dict[str, str]:
@@ -83,11 +83,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--max-restarts", type=int, default=5, help="restarts of a node that dies after start-up (0: stop the graph instead)")
     parser.add_argument(
         "--default-malloc", dest="tune_malloc", action="store_false",
-        help=f"start node processes with glibc's default malloc settings instead of {' '.join(f'{k}={v}' for k, v in NODE_MALLOC_SETTINGS.items())}",
+        help=f"start node processes with glibc's default malloc and no heap trimming instead of {' '.join(f'{k}={v}' for k, v in NODE_MALLOC_SETTINGS.items())}",
     )
     parser.add_argument(
         "--no-spare", dest="spare", action="store_false",
         help="restart dead nodes from scratch instead of from a warm spare process (saves its memory)",
+    )
+    parser.add_argument(
+        "--spare-delay", type=float, default=SPARE_DELAY_S, metavar="S",
+        help=f"seconds after start-up and after each restart before the warm spare starts importing (default {SPARE_DELAY_S:g}); a node that dies sooner restarts from scratch",
     )
     parser.add_argument(
         "--executor", choices=EXECUTOR_CHOICES, default=None,
@@ -101,6 +105,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             parser.error(str(error))
     if args.rate <= 0:
         parser.error(f"--rate must be positive, got {args.rate}")
+    if not 0 <= args.spare_delay < float("inf"):
+        parser.error(f"--spare-delay must be a number of seconds >= 0, got {args.spare_delay}")
     if args.bag is not None and not args.bag.exists():
         parser.error(f"--bag {args.bag}: no such file or folder")
     args.params = args.params or default_params_file()
@@ -139,8 +145,10 @@ def node_command(name: str, args: argparse.Namespace) -> list[str]:
     return command
 
 
-#: Seconds after a restart before a new spare is started (its imports would compete for the CPU
-#: with the restarted node's start-up).
+#: Default seconds after start-up, and after each restart, before a spare is started: its imports
+#: take about 0.3 s of CPU, which the nodes need then. Started with the nodes, it made the global
+#: detector skip 2-5 frames, near the start, of a 30 Hz 1080p replay (85-88 of 90 answered, p99
+#: 80-109 ms, against 89-90 and 61-76 ms without a spare; three alternated runs each, 2026-12-02).
 SPARE_DELAY_S = 5.0
 
 
@@ -158,7 +166,7 @@ class NodeProcesses:
         self.restarts: dict[str, int] = {name: 0 for name in NODES}
         self.supervising = False
         self.spare: subprocess.Popen[bytes] | None = None
-        self._last_restart = float("-inf")
+        self._spare_due = time.monotonic() + args.spare_delay  # start-up, like a restart, goes first
         # When to look for dead segments again: a node killed within MIN_AGE_S of the last look
         # left a lock file too young for it to be told from a process that is starting up.
         self._segments_due: float | None = None
@@ -183,8 +191,8 @@ class NodeProcesses:
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
     def keep_spare(self) -> None:
-        """Start a spare if none is waiting, a restart is still allowed, and none was used (or
-        died) in the last ``SPARE_DELAY_S``."""
+        """Start a spare if none is waiting, a restart is still allowed, and ``--spare-delay``
+        seconds have passed since start-up and since a spare was last used (or died)."""
         if not self.args.spare or not self.supervising:
             return
         if not any(count < self.args.max_restarts for count in self.restarts.values()):
@@ -193,8 +201,8 @@ class NodeProcesses:
             print(f"pipeline: the warm spare exited with code {self.spare.returncode}; starting another later", flush=True)
             self._discard_spare(self.spare)
             self.spare = None
-            self._last_restart = time.monotonic()
-        if self.spare is None and time.monotonic() - self._last_restart >= SPARE_DELAY_S:
+            self._spare_due = time.monotonic() + self.args.spare_delay
+        if self.spare is None and time.monotonic() >= self._spare_due:
             self.spare = subprocess.Popen(
                 [sys.executable, "-m", "gldt_ros.spare"], stdin=subprocess.PIPE, start_new_session=True,
                 env=node_environment(self.args.tune_malloc, self.args.executor),
@@ -253,7 +261,7 @@ class NodeProcesses:
                 code = self.processes[name].returncode
                 print(f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})", flush=True)
                 self._start(name)
-                self._last_restart = time.monotonic()
+                self._spare_due = time.monotonic() + self.args.spare_delay
                 restarted.append(name)
             self.keep_spare()
         if restarted:
@@ -340,6 +348,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     started = time.monotonic()
     try:
         if args.in_process:
+            if args.tune_malloc:
+                start_heap_trimming(DEFAULT_PERIOD_S)  # the nodes' frames now churn this process's heap
             in_process_nodes = _create_in_process_nodes(args)
             for node in in_process_nodes:
                 executor.add_node(node)
