@@ -73,3 +73,65 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> Non
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_frame_itself() -> None:
+    """frame_pair_buffer leaves the previous image out once this node answered that frame: the
+    boxes must be those of the full pair. A node that does not hold the frame (restarted) pairs
+    the current frame with itself and says so, instead of failing on the empty image."""
+    from gldt_msgs.msg import FramePair
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import Header
+
+    from gldt_core.data import open_source
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.staged import detect_global_streamed, prepare_global_input
+    from gldt_ros.convert import bgr_to_image
+    from gldt_ros.nodes.global_detector import GlobalDetectorNode
+
+    frames = [frame.image for frame in islice(open_source(str(REAL_BAG)), 3)]
+    geometry = GlobalDetector(num_threads=1, optimize_graph=False)
+    prepared = [prepare_global_input(geometry, frame) for frame in frames]
+    height, width = frames[0].shape[:2]
+
+    def pair(previous: int, current: int, with_previous: bool) -> FramePair:
+        header = Header(frame_id="camera")
+        header.stamp.nanosec = current * 33_333_333
+        letterbox = prepared[current][1]
+        return FramePair(
+            header=header, frame_index=current, previous_frame_index=previous, full_width=width, full_height=height,
+            scale=float(letterbox.scale), pad_x=int(letterbox.pad_x), pad_y=int(letterbox.pad_y),
+            previous=bgr_to_image(prepared[previous][0], header) if with_previous else Image(header=header),
+            current=bgr_to_image(prepared[current][0], header),
+        )
+
+    def boxes(message) -> np.ndarray:
+        return np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections]).reshape(-1, 5)
+
+    def expected(previous: int, current: int) -> np.ndarray:
+        rows, _ = detect_global_streamed(full, prepared[previous][0], prepared[current][0], prepared[current][1], width, height)
+        return np.c_[(rows[:, 0] + rows[:, 2]) / 2, (rows[:, 1] + rows[:, 3]) / 2, rows[:, 2] - rows[:, 0], rows[:, 3] - rows[:, 1], rows[:, 4]]
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = GlobalDetectorNode(context=context)
+        published: list = []
+        node.publisher.publish = published.append  # type: ignore[method-assign]
+        warnings: list[str] = []
+        node.warn_throttled = lambda key, text: warnings.append(text)  # type: ignore[method-assign]
+        full = GlobalDetector(
+            num_threads=1, score_threshold=node.detector.score_threshold, classes=node.detector.classes, feature_reuse=False
+        )
+        node.on_pair(pair(0, 1, with_previous=True))
+        node.on_pair(pair(1, 2, with_previous=False))  # frame 1 is held here
+        assert not warnings
+        np.testing.assert_allclose(boxes(published[-1]), expected(1, 2), atol=1e-4)
+        assert len(published[-1].detections) > 0
+
+        node.on_pair(pair(0, 1, with_previous=False))  # asks for frame 0; this node holds frame 2
+        assert len(warnings) == 1 and "without its previous frame 0" in warnings[0] and "itself" in warnings[0]
+        np.testing.assert_allclose(boxes(published[-1]), expected(1, 1), atol=1e-4)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

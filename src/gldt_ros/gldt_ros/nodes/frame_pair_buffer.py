@@ -5,6 +5,12 @@ It decodes camera images (``sensor_msgs/Image`` in any supported encoding, or JP
 tracker with a pixel-free ``FrameTick``. When the mode scheduler answers with its decision for
 that frame, it sends either the resized frame pair to the global detector (GLOBAL) or the ROI
 crops to the local detector (LOCAL). Full frames therefore never cross a topic.
+
+Two things keep a GD frame's path short. While the tracker and the scheduler decide, the buffer
+already letterboxes the frame when the last decision was GLOBAL (in a GD stretch the next one
+almost always is). And once the global detector has answered the previous frame's pair, it holds
+that frame, so the pair goes out with an empty ``previous`` image (``FramePair.msg``): half the
+bytes, with the same boxes.
 """
 
 from __future__ import annotations
@@ -13,14 +19,15 @@ from collections import OrderedDict
 from typing import Any
 
 import numpy as np
-from gldt_msgs.msg import FramePair, FrameTick, RoiCrops, SchedulerState, TrackArray
+from gldt_msgs.msg import DetectionArray, FramePair, FrameTick, RoiCrops, SchedulerState, TrackArray
 from sensor_msgs.msg import CompressedImage, Image
 
 from gldt_core.detect import GlobalDetector, LocalDetector
+from gldt_core.detect.postprocess import Letterbox
 from gldt_core.detect.staged import prepare_global_input
 
 from gldt_ros import qos, topics
-from gldt_ros.convert import bgr_to_image, image_to_bgr, msgs_to_rois, track_array_to_rows
+from gldt_ros.convert import bgr_to_image, image_to_bgr, msgs_to_rois, stamp_nanoseconds, track_array_to_rows
 from gldt_ros.node_base import GldtNode, run_node
 
 #: Frames kept while waiting for the scheduler's answer (the answer normally comes within one).
@@ -47,6 +54,12 @@ class FramePairBuffer(GldtNode):
         # (frame index, letterboxed input) of the last GD frame: the next GD frame's predecessor,
         # so a GD stretch letterboxes each 1080p frame once, not twice (as GLDTPipeline does).
         self._last_prepared: tuple[int, np.ndarray] | None = None
+        # Frames letterboxed while their decision was pending: index -> (input, mapping).
+        self._prepared_ahead: dict[int, tuple[np.ndarray, Letterbox]] = {}
+        self._last_mode: int | None = None
+        # (frame index, stamp in ns) of the last pair the global detector answered: that frame's
+        # image need not travel again as the next pair's previous one.
+        self._global_answered: tuple[int, int] | None = None
         camera_qos = qos.camera_qos(self.param("camera_qos"))
         transport = self.param("image_transport")
         if transport in ("auto", "compressed"):
@@ -65,6 +78,7 @@ class FramePairBuffer(GldtNode):
         self.debug_image = self.create_publisher(Image, topics.DEBUG_IMAGE, 2)
         self._decisions: OrderedDict[int, tuple[str, np.ndarray]] = OrderedDict()
         self.create_subscription(TrackArray, topics.TRACKS, self.guarded(self.on_tracks, "tracks"), qos.RELIABLE)
+        self.create_subscription(DetectionArray, topics.DETECTIONS, self.on_detections, qos.RELIABLE)
 
     def on_image(self, message: Any) -> None:
         frame = image_to_bgr(message)
@@ -75,6 +89,7 @@ class FramePairBuffer(GldtNode):
                 "the next global frame is paired with itself"
             )
             self._frames.clear()
+            self._prepared_ahead.clear()
             self._previous_index = None
             self._last_prepared = None
         self._size = size
@@ -82,8 +97,13 @@ class FramePairBuffer(GldtNode):
         self._index += 1
         self._frames[index] = (message.header, frame)
         while len(self._frames) > PENDING_FRAMES:
-            self._frames.popitem(last=False)
+            evicted, _ = self._frames.popitem(last=False)
+            self._prepared_ahead.pop(evicted, None)
         self.ticks.publish(FrameTick(header=message.header, frame_index=index, width=size[0], height=size[1]))
+        if self._last_mode == SchedulerState.MODE_GLOBAL:
+            # Done while the tracker and the scheduler decide this frame; in a GD stretch the
+            # decision is GLOBAL again, and the pair leaves as soon as it comes.
+            self._prepared_ahead[index] = prepare_global_input(self.global_input, frame)
 
     def on_decision(self, decision: SchedulerState) -> None:
         index = int(decision.frame_index)
@@ -91,15 +111,20 @@ class FramePairBuffer(GldtNode):
             raise ValueError(f"scheduler decision for frame {index}, which is no longer buffered")
         header, frame = self._frames[index]
         previous = self._frames.get(self._previous_index, (None, frame))[1] if self._previous_index is not None else frame
+        self._last_mode = decision.mode
+        ahead = self._prepared_ahead.pop(index, None)
         if decision.mode == SchedulerState.MODE_GLOBAL:
-            prepared_current, letterbox = prepare_global_input(self.global_input, frame)
+            prepared_current, letterbox = ahead or prepare_global_input(self.global_input, frame)
             if self._previous_index is None:
                 prepared_previous = prepared_current
+            elif self.detector_holds_frame(self._previous_index):
+                prepared_previous = None  # the global detector answered that frame's pair last
             elif self._last_prepared is not None and self._last_prepared[0] == self._previous_index:
                 prepared_previous = self._last_prepared[1]
             else:
                 prepared_previous, _ = prepare_global_input(self.global_input, previous)
             self._last_prepared = (index, prepared_current)
+            previous_image = Image(header=header) if prepared_previous is None else bgr_to_image(prepared_previous, header)
             self.pairs.publish(
                 FramePair(
                     header=header,
@@ -110,7 +135,7 @@ class FramePairBuffer(GldtNode):
                     scale=float(letterbox.scale),
                     pad_x=int(letterbox.pad_x),
                     pad_y=int(letterbox.pad_y),
-                    previous=bgr_to_image(prepared_previous, header),
+                    previous=previous_image,
                     current=bgr_to_image(prepared_current, header),
                 )
             )
@@ -134,7 +159,22 @@ class FramePairBuffer(GldtNode):
         # frame after an LD stretch still gets a true consecutive pair.
         for stale in [i for i in self._frames if i < index]:
             del self._frames[stale]
+        for stale in [i for i in self._prepared_ahead if i < index]:
+            del self._prepared_ahead[stale]
         self._previous_index = index
+
+    def on_detections(self, array: DetectionArray) -> None:
+        """Note which frame the global detector answered last (see :meth:`detector_holds_frame`)."""
+        if array.mode == DetectionArray.MODE_GLOBAL:
+            self._global_answered = (int(array.frame_index), stamp_nanoseconds(array.header.stamp))
+
+    def detector_holds_frame(self, index: int) -> bool:
+        """Whether the global detector's last answered pair had frame ``index`` of this stream as
+        its current frame (index and stamp, so a restarted buffer's new frame 0 is not taken for
+        the old one). The detector keeps that frame until its next pair, which is this one."""
+        if index not in self._frames or self._global_answered is None:
+            return False
+        return self._global_answered == (index, stamp_nanoseconds(self._frames[index][0].stamp))
 
 
     def on_tracks(self, array: TrackArray) -> None:

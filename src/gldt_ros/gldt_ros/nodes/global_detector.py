@@ -5,6 +5,9 @@ boxes back to full-frame pixels with the pair's scale, exactly as the offline de
 Like the offline pipeline it keeps the last pair's current-frame features (AM-YOLO's split pair,
 ``gldt export --feature-reuse``) and reuses them when the next pair's previous frame is that very
 image, which in a GD stretch it is; any other pair (one skipped, a restarted buffer) recomputes them.
+Once it has answered a pair, the buffer sends the next one without its previous image (it is the
+frame kept here); should that frame be gone (this node restarted in between), the current frame is
+paired with itself, as on a stream's first frame, and a warning says so.
 """
 
 from __future__ import annotations
@@ -38,6 +41,7 @@ class GlobalDetectorNode(GldtNode):
         self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), pairs_qos)
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
         self.last_pair: GlobalCarry | None = None  # the last pair's current input and its features
+        self.last_pair_index: int | None = None  # and that pair's frame index
 
     def reusable_features(self, previous: np.ndarray) -> np.ndarray | None:
         """The features kept from the last pair if its current input is exactly ``previous``."""
@@ -46,15 +50,34 @@ class GlobalDetectorNode(GldtNode):
             return None
         return last.features if np.array_equal(last.input, previous) else None
 
+    def held_previous(self, pair: FramePair, current: np.ndarray) -> GlobalCarry:
+        """The previous frame of a pair sent without it: the last pair's current frame, kept here.
+        If that is not the frame asked for, the current frame stands in for it (a warning says so)."""
+        last, index = self.last_pair, int(pair.previous_frame_index)
+        if last is not None and self.last_pair_index == index and last.input.shape == current.shape:
+            return last
+        self.warn_throttled(
+            "previous frame missing",
+            f"frame pair {pair.frame_index} came without its previous frame {index}, which this node does not hold "
+            f"(it holds {self.last_pair_index}; restarted since?): pairing frame {pair.frame_index} with itself",
+        )
+        return GlobalCarry(current)
+
     def on_pair(self, pair: FramePair) -> None:
         start = time.perf_counter()
-        current, previous = image_to_bgr(pair.current), image_to_bgr(pair.previous)
+        current = image_to_bgr(pair.current)
+        if pair.previous.height == 0:  # sent without it: the frame kept from the last pair
+            held = self.held_previous(pair, current)
+            previous, previous_features = held.input, held.features
+        else:
+            previous = image_to_bgr(pair.previous)
+            previous_features = self.reusable_features(previous)
         letterbox = Letterbox(pair.scale, int(pair.pad_x), int(pair.pad_y), current.shape[1], current.shape[0])
-        previous_features, self.last_pair = self.reusable_features(previous), None
+        self.last_pair, self.last_pair_index = None, None
         raw, current_features = detect_global_streamed(
             self.detector, previous, current, letterbox, int(pair.full_width), int(pair.full_height), previous_features
         )
-        self.last_pair = GlobalCarry(current, current_features)
+        self.last_pair, self.last_pair_index = GlobalCarry(current, current_features), int(pair.frame_index)
         detections = filter_classes(raw, 6, self.classes)
         self.publisher.publish(
             DetectionArray(
