@@ -26,6 +26,7 @@ from gldt_ros.executor import (  # noqa: E402
     executor_kind,
     spin_node,
 )
+from gldt_ros.heap_trim import HEAP_TRIM_PERIOD_ENV  # noqa: E402
 from gldt_ros.pipeline import default_params_file, node_environment, parse_args  # noqa: E402
 
 
@@ -153,16 +154,21 @@ def test_a_node_process_stops_cleanly_on_sigint(kind: str) -> None:
     assert "FATAL" not in output, output  # a KeyboardInterrupt inside a callback of the events executor
 
 
-def test_a_bad_executor_choice_stops_a_node_at_start_in_one_line() -> None:
+@pytest.mark.parametrize(
+    "variable, value, complaint",
+    [
+        (EXECUTOR_ENV, "threads", "GLDT_EXECUTOR='threads': expected one of events, single"),
+        (HEAP_TRIM_PERIOD_ENV, "often", "GLDT_HEAP_TRIM_PERIOD='often' is not a number of seconds"),
+    ],
+)
+def test_a_bad_process_setting_stops_a_node_at_start_in_one_line(variable: str, value: str, complaint: str) -> None:
     env = node_environment(tune_malloc=False)
-    env[EXECUTOR_ENV] = "threads"
+    env[variable] = value
     completed = subprocess.run(
         [sys.executable, "-m", "gldt_ros.nodes.mode_scheduler"], env=env, capture_output=True, text=True, timeout=60
     )
     assert completed.returncode == 1
-    assert completed.stdout.strip().splitlines() == [
-        "[gldt] cannot start: GLDT_EXECUTOR='threads': expected one of events, single"
-    ], completed.stdout + completed.stderr
+    assert completed.stdout.strip().splitlines() == [f"[gldt] cannot start: {complaint}"], completed.stdout + completed.stderr
 
 
 def test_a_callback_cut_short_by_shutdown_is_a_stop_but_a_runtime_error_before_it_is_not() -> None:

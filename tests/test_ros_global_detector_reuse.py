@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from itertools import islice
 from pathlib import Path
+from typing import Any, Callable
 
 import numpy as np
 import pytest
@@ -16,30 +17,45 @@ from rclpy.context import Context  # noqa: E402
 REAL_BAG = Path(__file__).resolve().parents[1] / "bags" / "halmstad_v_drone_001"
 
 
-def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> None:
+def bag_pairs(count: int) -> tuple[list, int, int, Callable[..., Any]]:
+    """The real bag's first ``count`` frames letterboxed as frame_pair_buffer does, their full
+    width and height, and ``pair(previous, current, with_previous=True)`` building a FramePair of
+    two of them (``with_previous=False``: sent without the previous image, as the buffer does once
+    the detector answered that frame)."""
     from gldt_msgs.msg import FramePair
+    from sensor_msgs.msg import Image
     from std_msgs.msg import Header
 
     from gldt_core.data import open_source
     from gldt_core.detect import GlobalDetector
-    from gldt_core.detect.staged import detect_global_streamed, prepare_global_input
+    from gldt_core.detect.staged import prepare_global_input
     from gldt_ros.convert import bgr_to_image
-    from gldt_ros.nodes.global_detector import GlobalDetectorNode
 
-    frames = [frame.image for frame in islice(open_source(str(REAL_BAG)), 5)]
+    frames = [frame.image for frame in islice(open_source(str(REAL_BAG)), count)]
     geometry = GlobalDetector(num_threads=1, optimize_graph=False)
     prepared = [prepare_global_input(geometry, frame) for frame in frames]
     height, width = frames[0].shape[:2]
 
-    def pair(previous: int, current: int) -> FramePair:
+    def pair(previous: int, current: int, with_previous: bool = True) -> FramePair:
         header = Header(frame_id="camera")
         header.stamp.nanosec = current * 33_333_333
         letterbox = prepared[current][1]
         return FramePair(
             header=header, frame_index=current, previous_frame_index=previous, full_width=width, full_height=height,
             scale=float(letterbox.scale), pad_x=int(letterbox.pad_x), pad_y=int(letterbox.pad_y),
-            previous=bgr_to_image(prepared[previous][0], header), current=bgr_to_image(prepared[current][0], header),
+            previous=bgr_to_image(prepared[previous][0], header) if with_previous else Image(header=header),
+            current=bgr_to_image(prepared[current][0], header),
         )
+
+    return prepared, width, height, pair
+
+
+def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> None:
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.staged import detect_global_streamed
+    from gldt_ros.nodes.global_detector import GlobalDetectorNode
+
+    prepared, width, height, pair = bag_pairs(5)
 
     context = Context()
     rclpy.init(context=context)
@@ -79,31 +95,11 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
     """frame_pair_buffer leaves the previous image out once this node answered that frame: the
     boxes must be those of the full pair. A node that does not hold the frame (restarted) pairs
     the current frame with itself and says so, instead of failing on the empty image."""
-    from gldt_msgs.msg import FramePair
-    from sensor_msgs.msg import Image
-    from std_msgs.msg import Header
-
-    from gldt_core.data import open_source
     from gldt_core.detect import GlobalDetector
-    from gldt_core.detect.staged import detect_global_streamed, prepare_global_input
-    from gldt_ros.convert import bgr_to_image
+    from gldt_core.detect.staged import detect_global_streamed
     from gldt_ros.nodes.global_detector import GlobalDetectorNode
 
-    frames = [frame.image for frame in islice(open_source(str(REAL_BAG)), 3)]
-    geometry = GlobalDetector(num_threads=1, optimize_graph=False)
-    prepared = [prepare_global_input(geometry, frame) for frame in frames]
-    height, width = frames[0].shape[:2]
-
-    def pair(previous: int, current: int, with_previous: bool) -> FramePair:
-        header = Header(frame_id="camera")
-        header.stamp.nanosec = current * 33_333_333
-        letterbox = prepared[current][1]
-        return FramePair(
-            header=header, frame_index=current, previous_frame_index=previous, full_width=width, full_height=height,
-            scale=float(letterbox.scale), pad_x=int(letterbox.pad_x), pad_y=int(letterbox.pad_y),
-            previous=bgr_to_image(prepared[previous][0], header) if with_previous else Image(header=header),
-            current=bgr_to_image(prepared[current][0], header),
-        )
+    prepared, width, height, pair = bag_pairs(3)
 
     def boxes(message) -> np.ndarray:
         return np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections]).reshape(-1, 5)
