@@ -114,7 +114,7 @@ class FramePairBuffer(GldtNode):
         self._last_mode = decision.mode
         ahead = self._prepared_ahead.pop(index, None)
         if decision.mode == SchedulerState.MODE_GLOBAL:
-            prepared_current, letterbox = ahead or prepare_global_input(self.global_input, frame)
+            prepared_current, letterbox = ahead if ahead is not None else prepare_global_input(self.global_input, frame)
             if self._previous_index is None:
                 prepared_previous = prepared_current
             elif self.detector_holds_frame(self._previous_index):
