@@ -131,3 +131,28 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_the_node_warms_the_model_up_before_it_is_ready_and_keeps_nothing_of_it(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Blank pairs at a 1080p camera's input size, the second reusing the first one's features
+    (both sessions of the split pair run); none of it may pass for a real previous frame."""
+    import gldt_ros.nodes.global_detector as module
+
+    calls: list[tuple[tuple[int, ...], bool]] = []
+    original = module.detect_global_streamed
+
+    def counting(detector, previous, current, mapping, width, height, previous_features=None):
+        calls.append((current.shape, previous_features is not None))
+        return original(detector, previous, current, mapping, width, height, previous_features)
+
+    monkeypatch.setattr(module, "detect_global_streamed", counting)
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = module.GlobalDetectorNode(context=context)
+        width, height = node.detector.input_size(1920, 1080)
+        assert calls == [((height, width, 3), False)] + [((height, width, 3), True)] * (module.WARM_UP_RUNS - 1)
+        assert node.last_pair is None and node.last_pair_index is None
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

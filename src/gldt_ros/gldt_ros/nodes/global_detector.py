@@ -29,6 +29,11 @@ from gldt_ros.node_base import GldtNode, run_node
 from gldt_ros.params import detector_kwargs, parse_classes
 
 
+#: Blank pairs run before the node reports ready (:meth:`GlobalDetectorNode.warm_up`): the first
+#: computes the previous frame's features too, the second reuses them, as in a GD stretch.
+WARM_UP_RUNS = 2
+
+
 class GlobalDetectorNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("global_detector", **kwargs)
@@ -42,6 +47,19 @@ class GlobalDetectorNode(GldtNode):
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
         self.last_pair: GlobalCarry | None = None  # the last pair's current input and its features
         self.last_pair_index: int | None = None  # and that pair's frame index
+        self.warm_up()
+
+    def warm_up(self) -> None:
+        """Run the model on blank pairs of a 1080p camera's input size before the node reports
+        ready. The first runs after loading take several times as long (onnxruntime allocates its
+        buffers), and at 30 Hz the camera's first pairs were skipped while they ran."""
+        width, height = self.detector.input_size(1920, 1080)
+        blank = np.zeros((height, width, 3), np.uint8)
+        features = None
+        for _ in range(WARM_UP_RUNS):
+            _, features = detect_global_streamed(
+                self.detector, blank, blank, Letterbox(1.0, 0, 0, width, height), width, height, features
+            )
 
     def reusable_features(self, previous: np.ndarray) -> np.ndarray | None:
         """The features kept from the last pair if its current input is exactly ``previous``."""
