@@ -146,9 +146,10 @@ def node_command(name: str, args: argparse.Namespace) -> list[str]:
 
 
 #: Default seconds after start-up, and after each restart, before a spare is started: its imports
-#: take about 0.3 s of CPU, which the nodes need then. Started with the nodes, it made the global
-#: detector skip 2-5 frames, near the start, of a 30 Hz 1080p replay (85-88 of 90 answered, p99
-#: 80-109 ms, against 89-90 and 61-76 ms without a spare; three alternated runs each, 2026-12-02).
+#: (rclpy, numpy, OpenCV, onnxruntime, the core) take CPU the nodes need then. Started with the
+#: nodes, it made the global detector skip 2-5 frames, near the start, of a 30 Hz 1080p replay
+#: (85-88 of 90 answered, p99 80-109 ms, against 89-90 and 61-76 ms without a spare; three
+#: alternated runs each, 2026-12-02).
 SPARE_DELAY_S = 5.0
 
 
