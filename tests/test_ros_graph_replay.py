@@ -52,12 +52,17 @@ def offline_rows(bag: Path) -> tuple[np.ndarray, np.ndarray]:
     return rows, ground_truth
 
 
-@pytest.fixture(scope="module", params=BAGS, ids=[bag.name for bag in BAGS])
+#: (bag, nodes in one process?): every bag through five processes, and the real bag through the
+#: five nodes in `pipeline`'s own process (`--in-process`), which must give the same tracks.
+REPLAYS = [(bag, False) for bag in BAGS] + [(bag, True) for bag in BAGS if bag.name in MOTA_FLOOR]
+
+
+@pytest.fixture(scope="module", params=REPLAYS, ids=[bag.name + ("-in-process" if one else "") for bag, one in REPLAYS])
 def replay(request, tmp_path_factory):
-    bag: Path = request.param
+    bag, in_process = request.param
     record = tmp_path_factory.mktemp(bag.name) / "graph.mcap"
     completed = subprocess.run(
-        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--record", str(record)],
+        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--record", str(record)] + (["--in-process"] if in_process else []),
         capture_output=True, text=True, timeout=600, env=isolated_ros_env(),
     )
     assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Callable, Sequence
 
 from gldt_ros.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
-from gldt_ros.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, SINGLE, background_executor, executor_kind
+from gldt_ros.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, background_executor, executor_kind
 from gldt_ros.heap_trim import DEFAULT_PERIOD_S, HEAP_TRIM_PERIOD_ENV, start_heap_trimming
 from gldt_ros.shm_cleanup import MIN_AGE_S, remove_dead_segments
 from gldt_ros.stack_dump import STACK_DUMP_SIGNAL
@@ -339,9 +339,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
     children: NodeProcesses | None = None
     in_process_nodes = []
-    # --in-process: the five nodes share this process's executor, which must then serve the
-    # detectors' callbacks beside the player's, so it keeps rclpy's thread pool.
-    executor, spin = background_executor(SINGLE if args.in_process else args.executor)
+    # --in-process: the five nodes share this process's executor, the events executor unless
+    # --executor single. rclpy's thread pool made a lockstep replay crawl at 1 fps there: with a
+    # node's callback running, its other subscriptions stay ready, and the pool's wait loop spun
+    # on them holding the GIL the running callback needed (py-spy, 2026-12-02).
+    executor, spin = background_executor(args.executor)
     driver = GraphDriver(args)
     executor.add_node(driver)
     spin_thread = threading.Thread(target=spin, name="gldt-spin", daemon=True)
@@ -360,7 +362,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         expected = [f"{args.namespace.strip('/')}/{n}".strip("/") for n in NODES]
         if not driver.wait_for_nodes(expected, args.startup_timeout, lambda: children.dead() if children else []):
             return 1
-        spun_by = "one multi-threaded executor" if args.in_process else f"the {args.executor} executor"
+        spun_by = f"the {args.executor} executor" + (", all in this process" if args.in_process else "")
         print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s ({spun_by})", flush=True)
         if children is not None:
             children.supervising = True
