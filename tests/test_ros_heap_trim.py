@@ -73,7 +73,9 @@ def test_trimming_returns_a_heap_pinned_by_small_live_allocations() -> None:
         frames, pins = [], []
         for _ in range(24):
             frames.append(np.ones(6 << 20, np.uint8))  # a decoded 1080p frame, touched
-            pins.append(bytearray(1000))  # a small allocation (malloc, not pymalloc) that outlives it
+            # A small allocation that outlives it: malloc'd (pymalloc stops at 512 bytes) and too
+            # big for the crumbs the imports left free, so it lands above the frame.
+            pins.append(bytearray(64 << 10))
         del frames
         before = rss()
         glibc_malloc_trim()(0)

@@ -21,7 +21,6 @@ turns it on. Where the C library is not glibc there is nothing to call, and it s
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import os
 import threading
 from typing import Callable
@@ -34,12 +33,12 @@ DEFAULT_PERIOD_S = 1.0
 
 
 def glibc_malloc_trim() -> Callable[[int], int] | None:
-    """glibc's ``malloc_trim`` through ctypes, or None where the C library has none (musl, macOS)."""
-    name = ctypes.util.find_library("c")
-    if name is None:
-        return None
+    """glibc's ``malloc_trim`` through ctypes, or None where the C library has none (musl, macOS).
+
+    Looked up among the symbols the process already has, as :mod:`gldt_ros.teardown_limit` finds
+    ``alarm``: ``ctypes.util.find_library`` would run ``ldconfig`` in a subprocess at every node's start."""
     try:
-        function = ctypes.CDLL(name).malloc_trim
+        function = ctypes.CDLL(None).malloc_trim
     except (OSError, AttributeError):
         return None
     function.argtypes = [ctypes.c_size_t]
