@@ -12,6 +12,10 @@ by frame so that the machine's drift hits them alike: their FPS are comparable. 
 GL-DT schedule's gain, measured in the same run. Frames are kept JPEG-encoded in memory and
 decoded as they are played, like a video would be; each frame's decode time (``decode`` stage) is
 booked to every row.
+
+``--oracle`` keeps all of that but hands the pipelines each frame's ground truth in place of the
+detectors' boxes (:mod:`gldt_core.bench.oracle`): the schedule's GD share and speed-up, and the
+tracker's scores, with a detector that never errs, at the shipped detectors' cost.
 """
 
 from __future__ import annotations
@@ -48,6 +52,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="Halmstad dataset root (skipped with a message when absent)",
     )
     parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration (defaults: Table I)")
+    parser.add_argument(
+        "--oracle",
+        action="store_true",
+        help="hand the pipelines the ground truth instead of the detectors' boxes (each detector still "
+        "runs, for its time): the schedule's GD share and speed-up with a perfect detector on this machine",
+    )
     parser.add_argument("--json", metavar="OUT.json", help="also write all numbers as JSON")
     parser.set_defaults(func=handle_ablation)
 
@@ -130,9 +140,16 @@ def halmstad_sequences(root: str, clips: int, clip_frames: int | None) -> list[C
 
 # --------------------------------------------------------------------------------- running
 def run_dataset(
-    sequences: list[CachedSequence], config: Any, detectors: tuple[Any, Any], progress: bool = False
+    sequences: list[CachedSequence],
+    config: Any,
+    detectors: tuple[Any, Any],
+    progress: bool = False,
+    oracle: bool = False,
 ) -> list[dict[str, Any]]:
     """All four variants over ``sequences``; one dict per variant (metrics in %, FPS, breakdown).
+
+    ``oracle``: the detectors run as usual but the pipelines get each frame's ground truth in
+    place of their boxes (:mod:`gldt_core.bench.oracle`).
 
     The four variants take turns frame by frame (:func:`run_frames_interleaved`) rather than each
     running the sequences in turn: this shared machine's speed drifts by up to a factor of two
@@ -146,6 +163,12 @@ def run_dataset(
     from gldt_core.pipeline.runner import run_frames_interleaved
 
     global_detector, local_detector = detectors
+    feed = None
+    if oracle:
+        from gldt_core.bench.oracle import GroundTruthFeed, OracleGlobalDetector, OracleLocalDetector
+
+        feed = GroundTruthFeed()
+        global_detector, local_detector = OracleGlobalDetector(global_detector, feed), OracleLocalDetector(local_detector, feed)
     runs = [_VariantRun(label, config.with_changes(local_enabled=on, tracker=name)) for label, on, name in VARIANTS]
     for sequence in sequences:
         drones_by_frame = _drone_centres_by_frame(sequence.gt)
@@ -175,7 +198,8 @@ def run_dataset(
 
             pipelines.append(pipeline)
             callbacks.append(watch_schedule if local_enabled else None)
-        for run, result in zip(runs, run_frames_interleaved(pipelines, sequence, on_frame=callbacks)):
+        frames = feed.play(sequence, sequence.gt) if feed is not None else sequence
+        for run, result in zip(runs, run_frames_interleaved(pipelines, frames, on_frame=callbacks)):
             run.frames += result.frames
             run.seconds += result.seconds
             run.gd_frames += result.global_frames
@@ -302,13 +326,14 @@ def handle_ablation(args: argparse.Namespace) -> int:
             raise ValueError(f"--{name} must be >= 0, got {getattr(args, name)}")
     config = load_config(args.config)
     detectors = build_detectors(config.with_changes(local_enabled=True))
-    report: dict[str, Any] = {}
+    report: dict[str, Any] = {"oracle": bool(args.oracle)}
+    oracle_note = " (oracle: ground truth in place of the detectors' boxes, at their cost)" if args.oracle else ""
 
     if args.scenes:
         sequences = synthetic_sequences(args.scenes, args.frames)
-        rows = run_dataset(sequences, config, detectors, progress=True)
+        rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle)
         report["synthetic_1080p"] = rows
-        print(format_table(f"synthetic 1080p test scenes: {len(sequences)} x {args.frames} frames", rows))
+        print(format_table(f"synthetic 1080p test scenes: {len(sequences)} x {args.frames} frames{oracle_note}", rows))
     if args.clips:
         from gldt_core.paths import halmstad_root
 
@@ -317,10 +342,10 @@ def handle_ablation(args: argparse.Namespace) -> int:
             print(f"halmstad: skipped, {args.halmstad}/videos not found")
         else:
             sequences = halmstad_sequences(args.halmstad, args.clips, args.clip_frames)
-            rows = run_dataset(sequences, config, detectors, progress=True)
+            rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle)
             report["halmstad_val"] = rows
             total = sum(len(s) for s in sequences)
-            print(format_table(f"Halmstad validation drone clips (640x512): {len(sequences)} clips, {total} frames", rows))
+            print(format_table(f"Halmstad validation drone clips (640x512): {len(sequences)} clips, {total} frames{oracle_note}", rows))
     if args.json:
         path = Path(args.json)
         temporary = path.with_name(path.name + ".part")
