@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from gldt_core.bench.ablation import CachedSequence, run_dataset
+from gldt_core.bench.ablation import CachedSequence, format_table, run_dataset
 from gldt_core.bench.oracle import (
     ORACLE_CLASS,
     ORACLE_SCORE,
@@ -129,7 +129,8 @@ def test_an_oracle_ablation_runs_every_detector_call_and_tracks_the_truth() -> N
     (30 GD, 120 LD, 30 GD, 20 LD), and every detector call the schedule makes still happens."""
     sequence = blank_sequence(200)
     gd, ld = CountingGlobal(), CountingLocal()
-    rows = {row["variant"]: row for row in run_dataset([sequence], PipelineConfig(), (gd, ld), oracle=True)}
+    listed = run_dataset([sequence], PipelineConfig(), (gd, ld), oracle=True)
+    rows = {row["variant"]: row for row in listed}
     gl_dt = rows["GD+LD+JPTrack"]
     assert gl_dt["gd_frames"] == 60 and rows["GD+LD+ByteTrack"]["gd_frames"] == 60
     assert gl_dt["roi_coverage"] == pytest.approx(1.0)
@@ -138,6 +139,16 @@ def test_an_oracle_ablation_runs_every_detector_call_and_tracks_the_truth() -> N
     # Two GD-only rows on all 200 frames, two GL-DT rows on their 60 GD frames; LD on the rest.
     assert gd.calls == 2 * 200 + 2 * 60
     assert ld.calls == 2 * 140
+    assert "without the decode stage" in format_table("oracle", listed)
     # The same detectors without the oracle find nothing, so nothing is tracked.
     plain = {row["variant"]: row for row in run_dataset([sequence], PipelineConfig(), (CountingGlobal(), CountingLocal()))}
     assert plain["GD+LD+JPTrack"]["MOTA"] <= 0.0 and plain["GD+LD+JPTrack"]["gd_frames"] == 200
+
+
+def test_the_ratio_without_decode_leaves_out_the_stage_both_rows_pay() -> None:
+    from gldt_core.bench.ablation import _ratio_without_decode
+
+    ours = {"decode": 7.0, "preprocess": 1.0, "gd": 4.0, "ld": 3.0, "tracking": 0.5}
+    peer = {"decode": 7.0, "preprocess": 1.0, "gd": 17.0, "tracking": 0.5}
+    assert _ratio_without_decode(ours, peer) == pytest.approx(18.5 / 8.5)
+    assert _ratio_without_decode({"decode": 1.0}, peer) is None

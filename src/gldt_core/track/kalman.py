@@ -16,7 +16,7 @@ the same pixels whatever its size: a 6 px drone jumps as far as a 60 px one. Wit
 filter took such jumps for measurement noise, smoothed them away, and its box trailed the target
 by more than the box's own size. Fed the ground truth of the synthetic test scenes
 (`gldt bench ablation --scenes 3 --clips 0 --oracle`), JPTrack on every frame scored 58.7 MOTA;
-with the floor, 98.4. A floor on the velocity noise instead followed the targets as well but made
+with the floors, 98.6. A floor on the velocity noise instead followed the targets as well but made
 every velocity follow the detections' jitter, and the avoidance planner reads those velocities;
 the position floor leaves them as smooth as ByteTrack's (tests/test_track_kalman.py). A new
 track's centre velocity starts with a pixel floor on its uncertainty too
