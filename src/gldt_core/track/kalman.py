@@ -48,10 +48,10 @@ MIN_STD_PX = 0.5
 MIN_CENTRE_PROCESS_STD_PX = 1.5
 #: Smallest standard deviation of a new track's centre velocity (px per reference frame). A drone
 #: can cross the image at a few pixels per frame whatever its size, but ByteTrack's 10/160 of the
-#: size says a new 6 px box is almost surely still (0.4 px per frame; the floor is reached at
-#: 32 px). With the floor above
-#: taking the innovations into the position, such a filter learnt a fast small target's velocity
-#: too slowly for PMR to bring the track back after an occlusion (tests/test_track_lost.py).
+#: size says a new 6 px box is almost surely still (0.4 px per frame; ByteTrack's value reaches
+#: the floor at 32 px). With the position floor above taking the innovations, such a filter learnt
+#: a fast small target's velocity too slowly for PMR to bring the track back after an occlusion
+#: (tests/test_track_lost.py).
 MIN_BIRTH_CENTRE_VELOCITY_STD_PX = 2.0
 
 _H = np.hstack([np.eye(4), np.zeros((4, 4))])
