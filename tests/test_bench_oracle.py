@@ -145,10 +145,11 @@ def test_an_oracle_ablation_runs_every_detector_call_and_tracks_the_truth() -> N
     assert plain["GD+LD+JPTrack"]["MOTA"] <= 0.0 and plain["GD+LD+JPTrack"]["gd_frames"] == 200
 
 
-def test_the_ratio_without_decode_leaves_out_the_stage_both_rows_pay() -> None:
+def test_the_ratio_without_decode_takes_the_shared_stage_out_of_each_rows_time() -> None:
     from gldt_core.bench.ablation import _ratio_without_decode
 
-    ours = {"decode": 7.0, "preprocess": 1.0, "gd": 4.0, "ld": 3.0, "tracking": 0.5}
-    peer = {"decode": 7.0, "preprocess": 1.0, "gd": 17.0, "tracking": 0.5}
-    assert _ratio_without_decode(ours, peer) == pytest.approx(18.5 / 8.5)
-    assert _ratio_without_decode({"decode": 1.0}, peer) is None
+    ours = {"fps": 1000.0 / 16.0, "stage_ms": {"decode": 7.0, "gd": 4.0, "ld": 3.0}}
+    peer = {"fps": 1000.0 / 26.0, "stage_ms": {"decode": 7.0, "gd": 17.0}}
+    assert _ratio_without_decode(ours, peer) == pytest.approx(19.0 / 9.0)
+    no_decode = {"fps": 50.0, "stage_ms": {"gd": 20.0}}
+    assert _ratio_without_decode(no_decode, peer) is None

@@ -169,6 +169,10 @@ def test_the_floors_leave_boxes_of_32_px_and_more_to_bytetrack() -> None:
     sizes = np.array([200.0, 180.0, 200.0, 180.0])
     np.testing.assert_allclose(q[:4], (sizes / 20) ** 2)
     np.testing.assert_allclose(q[4:], (sizes / 160 * 30) ** 2)
+    edge = ConstantVelocityKalman(np.array([500.0, 500.0, 32.0, 32.0]))  # where both floors end
+    _, q = edge.transition(1 / 30)
+    np.testing.assert_allclose(np.sqrt(q[:4]), 32.0 / 20)
+    np.testing.assert_allclose(np.sqrt(np.diag(edge.covariance)[4:]) / 30, 10 * 32.0 / 160)
     small = ConstantVelocityKalman(np.array([500.0, 500.0, 6.0, 6.0]))
     _, q = small.transition(1 / 30)
     np.testing.assert_allclose(np.sqrt(q[:2]), 1.5)  # the centre: the floor

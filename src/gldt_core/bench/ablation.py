@@ -15,7 +15,7 @@ booked to every row.
 
 ``--oracle`` keeps all of that but hands the pipelines each frame's ground truth in place of the
 detectors' boxes (:mod:`gldt_core.bench.oracle`): the schedule's GD share and speed-up, and the
-tracker's scores, with a detector that never errs, at the shipped detectors' cost.
+tracker's scores, with a detector that never errs, at the configured detectors' cost.
 """
 
 from __future__ import annotations
@@ -55,8 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--oracle",
         action="store_true",
-        help="hand the pipelines the ground truth instead of the detectors' boxes (each detector still "
-        "runs, for its time): the schedule's GD share and speed-up with a perfect detector on this machine",
+        help="hand the pipelines the ground truth instead of the detectors' boxes (each configured detector "
+        "still runs, for its time): the schedule's GD share and speed-up with a perfect detector on this machine",
     )
     parser.add_argument("--json", metavar="OUT.json", help="also write all numbers as JSON")
     parser.set_defaults(func=handle_ablation)
@@ -262,13 +262,12 @@ class _VariantRun:
 
 
 def _drone_centres_by_frame(gt: Any) -> dict[int, Any]:
-    """``{frame: (K, 2) centres}`` of the drone (class 1 or unlabelled) ground-truth boxes."""
-    import numpy as np
+    """``{frame: (K, 2) centres}`` of the ground-truth targets the metrics score (drones)."""
+    from gldt_core.bench.oracle import target_boxes_by_frame
 
-    gt = np.asarray(gt, dtype=np.float64).reshape(-1, 10)
-    gt = gt[(gt[:, 7] == 1) | (gt[:, 7] == -1)]
-    centres = np.stack([gt[:, 2] + gt[:, 4] / 2, gt[:, 3] + gt[:, 5] / 2], axis=1)
-    return {int(f): centres[gt[:, 0] == f] for f in np.unique(gt[:, 0])}
+    return {
+        frame: (boxes[:, :2] + boxes[:, 2:]) / 2 for frame, boxes in target_boxes_by_frame(gt).items()
+    }
 
 
 def _inside_any(centres: Any, rois: Any) -> Any:
@@ -305,11 +304,11 @@ def format_table(title: str, rows: list[dict[str, Any]]) -> str:
         f"first LD frame; back from LD to GD: "
         + (", ".join(f"{count}x {reason}" for reason, count in sorted(ours["back_to_gd"].items())) or "never")
     )
-    undecoded = _ratio_without_decode(ours["stage_ms"], gd_only["stage_ms"])
+    undecoded = _ratio_without_decode(ours, gd_only)
     if undecoded is not None:
         lines.append(
             f"without the decode stage (frames handed over decoded, as a camera driver publishing raw "
-            f"images does): speed x{undecoded:.2f} (from the stage times below)"
+            f"images does): speed x{undecoded:.2f}"
         )
     stages = ", ".join(f"{k} {v:.1f}" for k, v in ours["stage_ms"].items())
     lines.append(f"GD+LD+JPTrack time per frame (ms): {stages}")
@@ -318,16 +317,19 @@ def format_table(title: str, rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def _ratio_without_decode(ours_ms: dict[str, float], peer_ms: dict[str, float]) -> float | None:
-    """GD-every-frame time over GL-DT time per frame, both without their (shared) decode stage.
+def _ratio_without_decode(ours: dict[str, Any], peer: dict[str, Any]) -> float | None:
+    """The speed ratio of two ablation rows with their (shared) decode time taken out: each row's
+    wall-clock time per frame (``1 / fps``) minus its ``decode`` stage. None without a decode stage.
 
     Every row pays the same decode for every frame, which caps the ratio however cheap LD frames
     are; on 1080p JPEGs it is a third of a GD frame. A camera driver that publishes raw images
     spares the perception stack that cost, and this is the ratio it would see.
     """
-    ours = sum(ms for name, ms in ours_ms.items() if name != "decode")
-    peer = sum(ms for name, ms in peer_ms.items() if name != "decode")
-    return peer / ours if ours > 0 and peer > 0 else None
+    if "decode" not in ours["stage_ms"] or "decode" not in peer["stage_ms"] or not ours["fps"] or not peer["fps"]:
+        return None
+    ours_ms = 1000.0 / ours["fps"] - ours["stage_ms"]["decode"]
+    peer_ms = 1000.0 / peer["fps"] - peer["stage_ms"]["decode"]
+    return peer_ms / ours_ms if ours_ms > 0 and peer_ms > 0 else None
 
 
 def handle_ablation(args: argparse.Namespace) -> int:

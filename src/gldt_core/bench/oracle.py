@@ -11,6 +11,11 @@ The GL-DT speed-up over the global detector on every frame is set by two things:
 schedule has to fall back to GD, and what an LD frame costs beside a GD frame. The first depends
 on the detector (a drone it scores low is not tracked, so GD keeps searching); the oracle removes
 that dependence and leaves what Table I's counters and this CPU allow.
+
+Two limits of the stand-in: LD boxes still pass the pipeline's NMS across ROIs (GD boxes pass
+none), so two targets overlapping on an LD frame lose one box there; and the truth handed out is
+that of the frame the feed yielded last, so frames must be processed one at a time, as the
+ablation does (a reader that decodes ahead would hand out a later frame's truth).
 """
 
 from __future__ import annotations
@@ -41,7 +46,8 @@ class GroundTruthFeed:
     """The ground truth of the frame being played, for the oracle detectors to hand out.
 
     :meth:`play` wraps a sequence's frames and sets :attr:`boxes` before each frame is yielded,
-    so every pipeline that processes that frame (the ablation interleaves four) sees its truth.
+    so every pipeline that processes that frame (the ablation interleaves four) sees its truth;
+    every pipeline must be done with a frame before the next one is drawn (no read-ahead).
     """
 
     def __init__(self) -> None:

@@ -48,19 +48,13 @@ MIN_STD_PX = 0.5
 MIN_CENTRE_PROCESS_STD_PX = 1.5
 #: Smallest standard deviation of a new track's centre velocity (px per reference frame). A drone
 #: can cross the image at a few pixels per frame whatever its size, but ByteTrack's 10/160 of the
-#: size says a new 6 px box is almost surely still (0.4 px per frame; ByteTrack's value reaches
-#: the floor at 32 px). With the position floor above taking the innovations, such a filter learnt
+#: size says a new 6 px box is almost surely still (0.4 px per frame; 0.625 with this filter's
+#: 0.5 px floor; ByteTrack's value reaches 2 px per frame at 32 px). With the position floor above taking the innovations, such a filter learnt
 #: a fast small target's velocity too slowly for PMR to bring the track back after an occlusion
 #: (tests/test_track_lost.py).
 MIN_BIRTH_CENTRE_VELOCITY_STD_PX = 2.0
 
 _H = np.hstack([np.eye(4), np.zeros((4, 4))])
-
-
-def _centre_floored(std: np.ndarray) -> np.ndarray:
-    """``[cx, cy, w, h]`` process-noise stds with the centre's lifted to its pixel floor."""
-    std[:2] = np.maximum(std[:2], MIN_CENTRE_PROCESS_STD_PX)
-    return std
 
 
 def _size_std(w: float, h: float, weight: float) -> np.ndarray:
@@ -104,10 +98,9 @@ class ConstantVelocityKalman:
     def _process_noise(self, dt: float) -> np.ndarray:
         w, h = self.mean[2], self.mean[3]
         steps = max(dt, 0.0) * self.ref_fps
-        q = np.empty(8)
-        q[:4] = _centre_floored(_size_std(w, h, STD_WEIGHT_POSITION)) ** 2 * steps
-        q[4:] = (_size_std(w, h, STD_WEIGHT_VELOCITY) * self.ref_fps) ** 2 * steps
-        return q
+        # The expression predict_many uses, on the same floors (_NOISE_FLOOR): one source for both.
+        sizes = np.array([w, h, w, h, w, h, w, h])
+        return (np.maximum(_NOISE_FLOOR, _NOISE_WEIGHT * sizes) * _noise_unit(self.ref_fps)) ** 2 * steps
 
     def predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
         """Mean and covariance ``dt`` seconds ahead, without changing the filter.
