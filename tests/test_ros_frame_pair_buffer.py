@@ -95,24 +95,29 @@ def test_only_the_global_detector_answering_this_very_frame_counts(buffer: Any) 
     assert buffer.sent_pairs[-1].previous.height > 0
 
 
+def prepared_ahead(buffer: Any) -> set[int]:
+    """Indices of the buffered frames letterboxed while their decision was pending."""
+    return {index for index, frame in buffer._frames.items() if frame.prepared is not None}
+
+
 def test_a_frame_is_letterboxed_ahead_only_in_a_gd_stretch_and_the_pair_is_the_same(buffer: Any) -> None:
     from gldt_msgs.msg import SchedulerState
     from gldt_ros.convert import image_to_bgr
 
     images = [camera_image(i) for i in range(4)]
     buffer.on_image(images[0])
-    assert not buffer._prepared_ahead, "no decision yet: nothing to guess from"
+    assert not prepared_ahead(buffer), "no decision yet: nothing to guess from"
     decide(buffer, 0, images[0], SchedulerState.MODE_GLOBAL)
     buffer.on_image(images[1])
-    assert set(buffer._prepared_ahead) == {1}
+    assert prepared_ahead(buffer) == {1}
     decide(buffer, 1, images[1], SchedulerState.MODE_GLOBAL)
-    assert not buffer._prepared_ahead
+    assert not prepared_ahead(buffer)
     np.testing.assert_array_equal(image_to_bgr(buffer.sent_pairs[-1].current), letterboxed(buffer, images[1]))
     buffer.on_image(images[2])
     decide(buffer, 2, images[2], SchedulerState.MODE_LOCAL)  # the guess was wrong: dropped, crops sent
-    assert not buffer._prepared_ahead and len(buffer.sent_crops) == 1
+    assert not prepared_ahead(buffer) and len(buffer.sent_crops) == 1
     buffer.on_image(images[3])
-    assert not buffer._prepared_ahead, "after a LOCAL decision nothing is letterboxed ahead"
+    assert not prepared_ahead(buffer), "after a LOCAL decision nothing is letterboxed ahead"
 
 
 def test_frames_letterboxed_ahead_leave_with_their_frames(buffer: Any) -> None:
@@ -125,4 +130,5 @@ def test_frames_letterboxed_ahead_leave_with_their_frames(buffer: Any) -> None:
     for index in range(1, 3 * PENDING_FRAMES):
         buffer.on_image(camera_image(index))
     assert len(buffer._frames) == PENDING_FRAMES
-    assert set(buffer._prepared_ahead) <= set(buffer._frames)
+    # Every frame after the GLOBAL decision was letterboxed ahead; only the buffered ones are held.
+    assert prepared_ahead(buffer) == set(buffer._frames)

@@ -42,6 +42,19 @@ def target_boxes_by_frame(gt: Any) -> dict[int, np.ndarray]:
     return {int(f): boxes[gt[:, 0] == f] for f in np.unique(gt[:, 0])}
 
 
+def as_detections(boxes: np.ndarray, roi_index: np.ndarray | None = None) -> np.ndarray:
+    """Ground-truth ``(K, 4)`` boxes as detector rows: ``[x1, y1, x2, y2, score, class]``, plus the
+    ROI column of the local detector's rows when ``roi_index`` is given."""
+    columns = 6 if roi_index is None else 7
+    out = np.empty((len(boxes), columns), dtype=np.float32)
+    out[:, :4] = boxes
+    out[:, 4] = ORACLE_SCORE
+    out[:, 5] = ORACLE_CLASS
+    if roi_index is not None:
+        out[:, 6] = roi_index
+    return out
+
+
 class GroundTruthFeed:
     """The ground truth of the frame being played, for the oracle detectors to hand out.
 
@@ -72,17 +85,9 @@ class OracleGlobalDetector:
         self.detector = detector
         self.feed = feed
 
-    def _truth(self) -> np.ndarray:
-        boxes = self.feed.boxes
-        out = np.empty((len(boxes), 6), dtype=np.float32)
-        out[:, :4] = boxes
-        out[:, 4] = ORACLE_SCORE
-        out[:, 5] = ORACLE_CLASS
-        return out
-
     def detect(self, previous_bgr: np.ndarray | None, current_bgr: np.ndarray) -> np.ndarray:
         self.detector.detect(previous_bgr, current_bgr)
-        return self._truth()
+        return as_detections(self.feed.boxes)
 
     def detect_pair(self, previous_bgr: np.ndarray | None, current_bgr: np.ndarray, carry: Any = None) -> tuple[np.ndarray, Any]:
         """As the real ``detect_pair``, with the real carry, so feature reuse costs what it costs
@@ -91,9 +96,9 @@ class OracleGlobalDetector:
         detect_pair = getattr(self.detector, "detect_pair", None)
         if detect_pair is None:
             self.detector.detect(previous_bgr, current_bgr)
-            return self._truth(), None
+            return as_detections(self.feed.boxes), None
         _, next_carry = detect_pair(previous_bgr, current_bgr, carry)
-        return self._truth(), next_carry
+        return as_detections(self.feed.boxes), next_carry
 
 
 class OracleLocalDetector:
@@ -118,9 +123,4 @@ class OracleLocalDetector:
         y = (boxes[:, 1] + boxes[:, 3])[:, None] / 2
         inside = (x >= rois[:, 0]) & (x < rois[:, 2]) & (y >= rois[:, 1]) & (y < rois[:, 3])
         seen = inside.any(axis=1)
-        out = np.empty((int(seen.sum()), 7), dtype=np.float32)
-        out[:, :4] = boxes[seen]
-        out[:, 4] = ORACLE_SCORE
-        out[:, 5] = ORACLE_CLASS
-        out[:, 6] = inside[seen].argmax(axis=1)
-        return out
+        return as_detections(boxes[seen], inside[seen].argmax(axis=1))

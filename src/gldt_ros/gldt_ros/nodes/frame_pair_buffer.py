@@ -16,6 +16,7 @@ bytes, with the same boxes.
 from __future__ import annotations
 
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,17 @@ PENDING_FRAMES = 8
 PAIRS_KEPT = 2
 
 
+@dataclass
+class BufferedFrame:
+    """A camera frame waiting for (or just past) its scheduler decision."""
+
+    header: Any
+    image: np.ndarray
+    #: The global detector's input made from it while its decision was pending (and mapping),
+    #: kept with the frame so that it leaves the buffer with it.
+    prepared: tuple[np.ndarray, Letterbox] | None = None
+
+
 class FramePairBuffer(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("frame_pair_buffer", **kwargs)
@@ -47,15 +59,13 @@ class FramePairBuffer(GldtNode):
             model_path=self.param("global_model_path") or None, num_threads=1, optimize_graph=False
         )
         self.crop = LocalDetector.crop
-        self._frames: OrderedDict[int, tuple[Any, np.ndarray]] = OrderedDict()
+        self._frames: OrderedDict[int, BufferedFrame] = OrderedDict()
         self._index = 0
         self._size: tuple[int, int] | None = None
         self._previous_index: int | None = None
         # (frame index, letterboxed input) of the last GD frame: the next GD frame's predecessor,
         # so a GD stretch letterboxes each 1080p frame once, not twice (as GLDTPipeline does).
         self._last_prepared: tuple[int, np.ndarray] | None = None
-        # Frames letterboxed while their decision was pending: index -> (input, mapping).
-        self._prepared_ahead: dict[int, tuple[np.ndarray, Letterbox]] = {}
         self._last_mode: int | None = None
         # (frame index, stamp in ns) of the last pair the global detector answered: that frame's
         # image need not travel again as the next pair's previous one.
@@ -89,32 +99,32 @@ class FramePairBuffer(GldtNode):
                 "the next global frame is paired with itself"
             )
             self._frames.clear()
-            self._prepared_ahead.clear()
             self._previous_index = None
             self._last_prepared = None
         self._size = size
         index = self._index
         self._index += 1
-        self._frames[index] = (message.header, frame)
+        buffered = BufferedFrame(message.header, frame)
+        self._frames[index] = buffered
         while len(self._frames) > PENDING_FRAMES:
-            evicted, _ = self._frames.popitem(last=False)
-            self._prepared_ahead.pop(evicted, None)
+            self._frames.popitem(last=False)
         self.ticks.publish(FrameTick(header=message.header, frame_index=index, width=size[0], height=size[1]))
         if self._last_mode == SchedulerState.MODE_GLOBAL:
             # Done while the tracker and the scheduler decide this frame; in a GD stretch the
             # decision is GLOBAL again, and the pair leaves as soon as it comes.
-            self._prepared_ahead[index] = prepare_global_input(self.global_input, frame)
+            buffered.prepared = prepare_global_input(self.global_input, frame)
 
     def on_decision(self, decision: SchedulerState) -> None:
         index = int(decision.frame_index)
         if index not in self._frames:
             raise ValueError(f"scheduler decision for frame {index}, which is no longer buffered")
-        header, frame = self._frames[index]
-        previous = self._frames.get(self._previous_index, (None, frame))[1] if self._previous_index is not None else frame
+        buffered = self._frames[index]
+        header, frame = buffered.header, buffered.image
+        previous_buffered = self._frames.get(self._previous_index) if self._previous_index is not None else None
+        previous = previous_buffered.image if previous_buffered is not None else frame
         self._last_mode = decision.mode
-        ahead = self._prepared_ahead.pop(index, None)
         if decision.mode == SchedulerState.MODE_GLOBAL:
-            prepared_current, letterbox = ahead if ahead is not None else prepare_global_input(self.global_input, frame)
+            prepared_current, letterbox = buffered.prepared or prepare_global_input(self.global_input, frame)
             if self._previous_index is None:
                 prepared_previous = prepared_current
             elif self.detector_holds_frame(self._previous_index):
@@ -159,8 +169,7 @@ class FramePairBuffer(GldtNode):
         # frame after an LD stretch still gets a true consecutive pair.
         for stale in [i for i in self._frames if i < index]:
             del self._frames[stale]
-        for stale in [i for i in self._prepared_ahead if i < index]:
-            del self._prepared_ahead[stale]
+        buffered.prepared = None  # used or not, it is done with
         self._previous_index = index
 
     def on_detections(self, array: DetectionArray) -> None:
@@ -174,9 +183,7 @@ class FramePairBuffer(GldtNode):
         the old one). The detector keeps that frame until its next pair, which is this one."""
         if index not in self._frames or self._global_answered is None:
             return False
-        return self._global_answered == (index, stamp_nanoseconds(self._frames[index][0].stamp))
-
-
+        return self._global_answered == (index, stamp_nanoseconds(self._frames[index].header.stamp))
     def on_tracks(self, array: TrackArray) -> None:
         """Publish the debug overlay (boxes, ids, mode, ROIs) of the frame these tracks are for."""
         if self.debug_image.get_subscription_count() == 0:
@@ -186,11 +193,11 @@ class FramePairBuffer(GldtNode):
             return  # already evicted: the overlay is best effort
         from gldt_core.pipeline.overlay import draw_overlay
 
-        header, frame = self._frames[index]
+        buffered = self._frames[index]
         mode, rois = self._decisions.get(index, ("GD", np.zeros((0, 4), np.int64)))
         rows = track_array_to_rows(array)
-        overlay = draw_overlay(frame, rows[:, :5], mode, rois if len(rois) else None, index)
-        self.debug_image.publish(bgr_to_image(overlay, header))
+        overlay = draw_overlay(buffered.image, rows[:, :5], mode, rois if len(rois) else None, index)
+        self.debug_image.publish(bgr_to_image(overlay, buffered.header))
 
 
 def create_node(cli_args: list[str] | None = None) -> FramePairBuffer:
