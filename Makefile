@@ -5,21 +5,30 @@ SHELL := /bin/bash
 VENV_PY := .venv/bin/python
 PYTEST_ARGS ?=
 
-.PHONY: help setup demo test test-slow test-all docs bench-peers clean
+.PHONY: help setup demo test lint test-slow test-all docs bench-peers clean
 
 help:
 	@echo "make demo       set up, then replay the bundled sample through GL-DT and print what it saw"
-	@echo "make test       set up, then run the default test suite (excludes slow suites)"
+	@echo "make test       set up, then lint, type-check and run the default test suite (excludes slow suites)"
+	@echo "make lint       set up, then run ruff (lint, format) and mypy only"
 	@echo "make test-slow  set up, then run only the slow suites (training, soak, big benchmarks)"
 
 setup:
 	@bash scripts/setup.sh
 
 demo: setup
-	@bash scripts/with_ros_env.sh $(VENV_PY) -m gldt_core.demo
+	@bash scripts/with_ros_env.sh $(VENV_PY) -m gldt_core demo
 
+# Lint and type checks first (their report stays short), then the tests, which run whatever the
+# checks said; the target fails when either does.
 test: setup
-	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest -m "not slow" $(PYTEST_ARGS)
+	@lint_status=0; $(MAKE) --no-print-directory lint || lint_status=1; \
+	bash scripts/with_ros_env.sh $(VENV_PY) -m pytest -m "not slow" $(PYTEST_ARGS); test_status=$$?; \
+	exit $$(( test_status != 0 ? test_status : lint_status ))
+
+# ruff (lint and format) and mypy, as configured in pyproject.toml.
+lint: setup
+	@.venv/bin/ruff check --quiet && .venv/bin/ruff format --check --quiet && .venv/bin/mypy --no-error-summary
 
 test-slow: setup
 	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest -m "slow" $(PYTEST_ARGS)
@@ -37,7 +46,7 @@ bench-peers: setup
 SOAK_MINUTES ?= 10
 .PHONY: soak-graph
 soak-graph: setup
-	@bash scripts/with_ros_env.sh $(VENV_PY) -m gldt_ros.soak_graph --minutes $(SOAK_MINUTES) --json out/soak_graph.json
+	@bash scripts/with_ros_env.sh $(VENV_PY) -m gldt_ros.bench.soak --minutes $(SOAK_MINUTES) --json out/soak_graph.json
 
 docs: setup
 	@$(VENV_PY) scripts/generate_param_docs.py

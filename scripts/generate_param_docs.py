@@ -11,7 +11,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src" / "gldt_ros"))
 
-from gldt_ros.params import default_yaml, markdown_table  # noqa: E402
+from gldt_ros.interface.params import default_yaml, markdown_table  # noqa: E402
 
 TABLE_START = "| node | parameter |"
 TABLE_END = "\n\n## Running the graph"

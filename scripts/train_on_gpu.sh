@@ -32,7 +32,7 @@ say "smoke: $device steps of both tasks"
 DEVICE=$device "$py" - <<'PY'
 import os
 
-from gldt_core.nn.train import DEFAULTS, _merge, train
+from gldt_core.training.train import DEFAULTS, _merge, train
 
 for task in ("global", "local"):
     model = {"channels": [4, 8, 8, 16, 16], "depth": 1, "num_classes": 3, "reg_max": 8, "head_levels": [2, 3]}
@@ -52,7 +52,7 @@ for task_config in global:global_gpu local:local_gpu; do
     task=${task_config%%:*}
     say "data: $task caches with $nproc_all workers"
     "$py" -c "
-from gldt_core.nn.train import build_datasets, load_config
+from gldt_core.training.train import build_datasets, load_config
 config = load_config('$configs/${task_config#*:}.yaml')
 config['data']['load_workers'] = $nproc_all
 train_ds, val_ds, info = build_datasets('$task', config)

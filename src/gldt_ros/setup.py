@@ -13,8 +13,8 @@ EXECUTABLES = {
     "local_detector": "gldt_ros.nodes.local_detector:main",
     "mode_scheduler": "gldt_ros.nodes.mode_scheduler:main",
     "jptrack_tracker": "gldt_ros.nodes.jptrack_tracker:main",
-    "threat_monitor": "gldt_ros.nodes.threat_monitor:main",
-    "pipeline": "gldt_ros.pipeline:main",
+    "threat_monitor": "gldt_ros.examples.threat_monitor:main",
+    "pipeline": "gldt_ros.launcher.pipeline:main",
 }
 
 setup(

@@ -79,7 +79,7 @@ class CachedSequence:
     def __iter__(self):
         import cv2
 
-        from gldt_core.pipeline.runner import SimpleFrame
+        from gldt_core.system.runner import SimpleFrame
 
         for index, (buffer, stamp) in enumerate(zip(self.encoded, self.stamps)):
             yield SimpleFrame(index=index, stamp=stamp, image=cv2.imdecode(buffer, cv2.IMREAD_COLOR))
@@ -95,7 +95,7 @@ def _encode(image: Any) -> Any:
 
 
 def cache_source(source: Any, name: str, max_frames: int | None = None) -> CachedSequence:
-    """Decode a :class:`gldt_core.data.FrameSource` once into a JPEG cache with its ground truth."""
+    """Decode a :class:`gldt_core.io.sources.FrameSource` once into a JPEG cache with its ground truth."""
     import numpy as np
 
     encoded, stamps, gt_rows = [], [], []
@@ -113,7 +113,7 @@ def cache_source(source: Any, name: str, max_frames: int | None = None) -> Cache
 
 def synthetic_sequences(scenes: int, frames: int) -> list[CachedSequence]:
     """The first ``scenes`` 1080p scenes of the synthetic *test* split (never trained on)."""
-    from gldt_core.data.synth import SynthSource
+    from gldt_core.io.synth_source import SynthSource
     from gldt_core.sim import presets
 
     return [
@@ -126,8 +126,8 @@ def halmstad_sequences(root: str, clips: int, clip_frames: int | None) -> list[C
     """The first ``clips`` validation ``V_DRONE`` clips (never trained on by the shipped models)."""
     from pathlib import Path
 
-    from gldt_core.data import open_source
-    from gldt_core.detect.halmstad_split import halmstad_split
+    from gldt_core.eval.halmstad_split import halmstad_split
+    from gldt_core.io.sources import open_source
 
     root_path = Path(root)
     names = [n for n in halmstad_split(root_path)["val"] if n.startswith("V_DRONE")][:clips]
@@ -159,8 +159,8 @@ def run_dataset(
     import sys
 
     from gldt_core.eval.mot_metrics import evaluate_many
-    from gldt_core.pipeline.pipeline import GLDTPipeline, build_tracker
-    from gldt_core.pipeline.runner import run_frames_interleaved
+    from gldt_core.system.gldt_system import GLDTSystem, build_tracker
+    from gldt_core.system.runner import run_frames_interleaved
 
     global_detector, local_detector = detectors
     feed = None
@@ -168,14 +168,17 @@ def run_dataset(
         from gldt_core.bench.oracle import GroundTruthFeed, OracleGlobalDetector, OracleLocalDetector
 
         feed = GroundTruthFeed()
-        global_detector, local_detector = OracleGlobalDetector(global_detector, feed), OracleLocalDetector(local_detector, feed)
+        global_detector, local_detector = (
+            OracleGlobalDetector(global_detector, feed),
+            OracleLocalDetector(local_detector, feed),
+        )
     runs = [_VariantRun(label, config.with_changes(local_enabled=on, tracker=name)) for label, on, name in VARIANTS]
     for sequence in sequences:
         drones_by_frame = _drone_centres_by_frame(sequence.gt)
         pipelines, callbacks = [], []
         for run in runs:
             local_enabled = run.config.scheduler.local_enabled
-            pipeline = GLDTPipeline(
+            pipeline = GLDTSystem(
                 run.config,
                 global_detector=global_detector,
                 local_detector=local_detector if local_enabled else None,
@@ -227,7 +230,7 @@ class _VariantRun:
     """What one ablation variant has accumulated so far over the sequences."""
 
     def __init__(self, label: str, config: Any) -> None:
-        from gldt_core.pipeline.timing import StageTimer
+        from gldt_core.system.timing import StageTimer
 
         self.label = label
         self.config = config
@@ -265,9 +268,7 @@ def _drone_centres_by_frame(gt: Any) -> dict[int, Any]:
     """``{frame: (K, 2) centres}`` of the ground-truth targets the metrics score (drones)."""
     from gldt_core.bench.oracle import target_boxes_by_frame
 
-    return {
-        frame: (boxes[:, :2] + boxes[:, 2:]) / 2 for frame, boxes in target_boxes_by_frame(gt).items()
-    }
+    return {frame: (boxes[:, :2] + boxes[:, 2:]) / 2 for frame, boxes in target_boxes_by_frame(gt).items()}
 
 
 def _inside_any(centres: Any, rois: Any) -> Any:
@@ -338,8 +339,8 @@ def handle_ablation(args: argparse.Namespace) -> int:
     import os
     from pathlib import Path
 
-    from gldt_core.pipeline.config import load_config
-    from gldt_core.pipeline.pipeline import build_detectors
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import build_detectors
 
     for name in ("scenes", "frames", "clips"):
         if getattr(args, name) < 0:
@@ -365,7 +366,12 @@ def handle_ablation(args: argparse.Namespace) -> int:
             rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle)
             report["halmstad_val"] = rows
             total = sum(len(s) for s in sequences)
-            print(format_table(f"Halmstad validation drone clips (640x512): {len(sequences)} clips, {total} frames{oracle_note}", rows))
+            print(
+                format_table(
+                    f"Halmstad validation drone clips (640x512): {len(sequences)} clips, {total} frames{oracle_note}",
+                    rows,
+                )
+            )
     if args.json:
         path = Path(args.json)
         temporary = path.with_name(path.name + ".part")

@@ -1,16 +1,16 @@
 """``gldt bench detection``: accuracy and latency of AM-YOLO, the same network without STFF, and the local model.
 
-Accuracy (drone class, IoU-matched as in COCO; see :mod:`gldt_core.detect.metrics`):
+Accuracy (drone class, IoU-matched as in COCO; see :mod:`gldt_core.eval.detection_metrics`):
 
 * real: every ``--frame-step``-th frame of the held-out Halmstad drone clips
-  (:mod:`gldt_core.detect.halmstad_split`), plus false drone detections per frame on the
+  (:mod:`gldt_core.eval.halmstad_split`), plus false drone detections per frame on the
   held-out bird/airplane clips at the operating threshold;
 * synthetic: frames of the ``gldt_core.sim.presets`` "test" scenes (1080p), never trained on.
 
 The detectors are asked about drones only, as the pipeline asks them (``--all-classes``: about
 every class, keeping the boxes whose best class is drone). A line per model then says where the
 drones went: found, boxed under another class, boxed badly or missed, and what its false drones
-at the operating threshold are (:func:`gldt_core.detect.metrics.error_breakdown`).
+at the operating threshold are (:func:`gldt_core.eval.detection_metrics.error_breakdown`).
 
 The global models see each frame with its predecessor; the local model covers the frame with
 300 px ROI tiles (one batch per frame) since no tracker is there to place ROIs. Latency is the
@@ -29,36 +29,61 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser("detection", help="AP50 / AP50:95 / AP_small / PR AUC / latency of the detectors")
     parser.add_argument("--real-root", default=None, help="Halmstad clips (skipped when absent)")
     parser.add_argument("--frame-step", type=int, default=10, help="evaluate every N-th frame of each real clip")
-    parser.add_argument("--max-clips", type=int, default=None, help="limit the held-out clips per category (quick runs)")
+    parser.add_argument(
+        "--max-clips", type=int, default=None, help="limit the held-out clips per category (quick runs)"
+    )
     parser.add_argument("--synthetic-scenes", type=int, default=6, help="synthetic test scenes (0 to skip)")
     parser.add_argument("--synthetic-frames", type=int, default=60, help="frames evaluated per synthetic scene")
-    parser.add_argument("--score-threshold", type=float, default=0.25, help="operating threshold for false-positive rates")
+    parser.add_argument(
+        "--score-threshold", type=float, default=0.25, help="operating threshold for false-positive rates"
+    )
     parser.add_argument("--global-model", default=None, help="AM-YOLO ONNX (default: shipped)")
     parser.add_argument("--nostff-model", default=None, help="no-STFF ablation ONNX (default: shipped)")
     parser.add_argument("--local-model", default=None, help="local ONNX (default: shipped)")
-    parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads (default: onnxruntime's)")
     parser.add_argument(
-        "--long-side", type=int, default=None,
+        "--threads", type=int, default=None, help="onnxruntime intra-op threads (default: onnxruntime's)"
+    )
+    parser.add_argument(
+        "--long-side",
+        type=int,
+        default=None,
         help="global models' input long side in px (default: each model card's; a multiple of 64), e.g. 1280 to ask whether small drones are missed for want of resolution",
     )
     parser.add_argument(
-        "--all-classes", action="store_true",
+        "--all-classes",
+        action="store_true",
         help="ask the detectors about every class and keep the boxes labelled drone (as before 2026-12-02); default: ask about drones only, as the pipeline does",
     )
     parser.add_argument("--latency-runs", type=int, default=30)
-    parser.add_argument("--latency-threads", type=int, nargs="+", default=[1, 2], help="onnxruntime thread counts to time")
-    parser.add_argument("--out", default="out/bench_detection", help="folder for the PNG curves and a JSON of all numbers")
-    parser.add_argument("--update-cards", action="store_true", help="write the measured numbers into the models' JSON cards (field 'benchmark')")
+    parser.add_argument(
+        "--latency-threads", type=int, nargs="+", default=[1, 2], help="onnxruntime thread counts to time"
+    )
+    parser.add_argument(
+        "--out", default="out/bench_detection", help="folder for the PNG curves and a JSON of all numbers"
+    )
+    parser.add_argument(
+        "--update-cards",
+        action="store_true",
+        help="write the measured numbers into the models' JSON cards (field 'benchmark')",
+    )
     parser.set_defaults(func=_run)
 
 
 def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, object]:
     from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector, LocalDetector, shipped_model_path
 
-    common = {"score_threshold": threshold, "num_threads": args.threads, "classes": None if args.all_classes else (DRONE_CLASS_ID,)}
+    common = {
+        "score_threshold": threshold,
+        "num_threads": args.threads,
+        "classes": None if args.all_classes else (DRONE_CLASS_ID,),
+    }
     return {
-        "AM-YOLO": GlobalDetector(args.global_model or shipped_model_path("global"), long_side=args.long_side, **common),
-        "no-STFF": GlobalDetector(args.nostff_model or shipped_model_path("global_nostff"), long_side=args.long_side, **common),
+        "AM-YOLO": GlobalDetector(
+            args.global_model or shipped_model_path("global"), long_side=args.long_side, **common
+        ),
+        "no-STFF": GlobalDetector(
+            args.nostff_model or shipped_model_path("global_nostff"), long_side=args.long_side, **common
+        ),
         "local": LocalDetector(args.local_model or shipped_model_path("local"), **common),
     }
 
@@ -134,7 +159,7 @@ def _synthetic_frames(scenes: int, frames: int) -> tuple[list, list]:
 
 
 def _breakdown_line(dataset: str, model: str, errors: dict, threshold: float) -> str:
-    """One line of :func:`~gldt_core.detect.metrics.error_breakdown`, as shares of the drones."""
+    """One line of :func:`~gldt_core.eval.detection_metrics.error_breakdown`, as shares of the drones."""
     n = max(errors["num_gt"], 1.0)
     share = lambda key: f"{100 * errors[key] / n:5.1f} %"  # noqa: E731
     return (
@@ -166,7 +191,7 @@ def _plot(curves: dict, path_pr, path_rc, title: str) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from gldt_core.detect.metrics import pr_auc, pr_curve, recall_at_confidence
+    from gldt_core.eval.detection_metrics import pr_auc, pr_curve, recall_at_confidence
 
     thresholds = np.linspace(0, 1, 101)
     for path, kind in ((path_pr, "pr"), (path_rc, "rc")):
@@ -195,8 +220,8 @@ def _run(args: argparse.Namespace) -> int:
 
     from gldt_core.bench.latency import gd_stretch_call
     from gldt_core.detect import DRONE_CLASS_ID
-    from gldt_core.detect.halmstad_split import halmstad_split
-    from gldt_core.detect.metrics import detection_summary, error_breakdown, match
+    from gldt_core.eval.detection_metrics import detection_summary, error_breakdown, match
+    from gldt_core.eval.halmstad_split import halmstad_split
 
     if args.frame_step < 1:
         raise ValueError(f"--frame-step must be >= 1, got {args.frame_step}")
@@ -219,7 +244,9 @@ def _run(args: argparse.Namespace) -> int:
         drone = [c for c in split["val"] if c.startswith("V_DRONE")][: args.max_clips]
         other = [c for c in split["val"] if not c.startswith("V_DRONE")]
         if args.max_clips:
-            other = [c for c in other if c.startswith("V_BIRD")][: args.max_clips] + [c for c in other if c.startswith("V_AIRPLANE")][: args.max_clips]
+            other = [c for c in other if c.startswith("V_BIRD")][: args.max_clips] + [
+                c for c in other if c.startswith("V_AIRPLANE")
+            ][: args.max_clips]
         datasets["real-val"] = _real_frames(root, drone, args.frame_step)
         negatives = _real_frames(root, other, args.frame_step)
         report["real_val_clips"] = drone + other
@@ -228,7 +255,9 @@ def _run(args: argparse.Namespace) -> int:
     if args.synthetic_scenes > 0:
         datasets["synthetic-test"] = _synthetic_frames(args.synthetic_scenes, args.synthetic_frames)
 
-    print(f"{'dataset':16s} {'model':8s} {'frames':>6s} {'gt':>5s} {'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s}")
+    print(
+        f"{'dataset':16s} {'model':8s} {'frames':>6s} {'gt':>5s} {'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s}"
+    )
     breakdowns: list[str] = []
     for dname, (pairs, gts) in datasets.items():
         curves = {}
@@ -242,7 +271,9 @@ def _run(args: argparse.Namespace) -> int:
             errors = error_breakdown(every_class, gts, DRONE_CLASS_ID, args.score_threshold)
             report.setdefault("errors", {}).setdefault(dname, {})[name] = errors
             breakdowns.append(_breakdown_line(dname, name, errors, args.score_threshold))
-            print(f"{dname:16s} {name:8s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} {summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f}")
+            print(
+                f"{dname:16s} {name:8s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} {summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f}"
+            )
         _plot(curves, out / f"pr_{dname}.png", out / f"recall_confidence_{dname}.png", f"drone, {dname}")
         a, b = report["datasets"][dname]["AM-YOLO"]["ap50"], report["datasets"][dname]["no-STFF"]["ap50"]
         print(f"{dname}: AM-YOLO - no-STFF AP50 margin {a - b:+.3f}")
@@ -256,7 +287,9 @@ def _run(args: argparse.Namespace) -> int:
             dets = _drones(_run_detector(name, detector, negatives[0], roi_side))
             rate = float(np.mean([(d[:, 4] >= args.score_threshold).sum() for d in dets]))
             report["false_drones_per_frame"][name] = rate
-            print(f"bird/airplane clips ({len(dets)} frames): {name:8s} false drone detections per frame at score >= {args.score_threshold}: {rate:.3f}")
+            print(
+                f"bird/airplane clips ({len(dets)} frames): {name:8s} false drone detections per frame at score >= {args.score_threshold}: {rate:.3f}"
+            )
 
     frame_1080 = np.full((1080, 1920, 3), 128, np.uint8)
     rng = np.random.default_rng(0)
@@ -276,11 +309,15 @@ def _run(args: argparse.Namespace) -> int:
         }
         report["latency_ms"][f"threads={threads}"] = latency
         in_w, in_h = timed["AM-YOLO"].input_size(1920, 1080)  # type: ignore[attr-defined]
-        print(f"latency (median of {args.latency_runs}, onnxruntime threads={threads}; global input {in_w}x{in_h}, local input {timed['local'].input_side}):")  # type: ignore[attr-defined]
+        print(
+            f"latency (median of {args.latency_runs}, onnxruntime threads={threads}; global input {in_w}x{in_h}, local input {timed['local'].input_side}):"
+        )  # type: ignore[attr-defined]
         for key, value in latency.items():
             print(f"  {key:22s} {value:7.1f} ms")
-        print(f"  ratio AM-YOLO / no-STFF: {latency['AM-YOLO 1080p frame'] / latency['no-STFF 1080p frame']:.2f}; "
-              f"local 4 ROIs / AM-YOLO frame: {latency['local 4 ROIs'] / latency['AM-YOLO 1080p frame']:.2f}")
+        print(
+            f"  ratio AM-YOLO / no-STFF: {latency['AM-YOLO 1080p frame'] / latency['no-STFF 1080p frame']:.2f}; "
+            f"local 4 ROIs / AM-YOLO frame: {latency['local 4 ROIs'] / latency['AM-YOLO 1080p frame']:.2f}"
+        )
     tmp = out / "report.json.tmp"
     tmp.write_text(json.dumps(report, indent=2))
     tmp.replace(out / "report.json")

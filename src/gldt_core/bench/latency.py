@@ -14,8 +14,9 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 #: The four ROIs timed for a local model (the issue's "batch of 4 ROI crops").
 ROIS_1080P = ((100, 100, 400, 400), (800, 300, 1100, 600), (1400, 500, 1700, 800), (300, 700, 600, 1000))
@@ -28,7 +29,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="time detector ONNX files side by side (interleaved rounds, ratio to the first)",
         description=__doc__.split("\n\n")[1].replace("\n", " "),
     )
-    parser.add_argument("models", nargs="+", type=Path, help="ONNX files exported by `gldt export` (the first is the peer)")
+    parser.add_argument(
+        "models", nargs="+", type=Path, help="ONNX files exported by `gldt export` (the first is the peer)"
+    )
     parser.add_argument("--rounds", type=int, default=40, help="timed rounds; each runs every model once (default 40)")
     parser.add_argument("--threads", type=int, default=1, help="onnxruntime intra-op threads (default 1)")
     parser.set_defaults(func=_run)
@@ -98,7 +101,9 @@ def _run(args: argparse.Namespace) -> int:
     models = []
     for path in args.models:  # e.g. a shell glob over models/ also lists the split pairs' parts
         if path.name.endswith((".features.onnx", ".reuse.onnx")):
-            print(f"skipping {path}: a part of a split AM-YOLO (gldt export --feature-reuse), timed with the model it was split from")
+            print(
+                f"skipping {path}: a part of a split AM-YOLO (gldt export --feature-reuse), timed with the model it was split from"
+            )
         else:
             models.append(path)
     if not models:
@@ -106,8 +111,10 @@ def _run(args: argparse.Namespace) -> int:
     rows = [row for path in models for row in detector_calls(path, args.threads)]
     labels, kinds, calls = zip(*rows)
     medians = interleaved_medians(list(calls), args.rounds)
-    print(f"latency, median of {args.rounds} interleaved rounds, onnxruntime threads={args.threads} "
-          "(global: a frame of a GD stretch of 1080p frames; local: 4 ROIs of 300 px), ratio to the first row:")
+    print(
+        f"latency, median of {args.rounds} interleaved rounds, onnxruntime threads={args.threads} "
+        "(global: a frame of a GD stretch of 1080p frames; local: 4 ROIs of 300 px), ratio to the first row:"
+    )
     for label, kind, median in zip(labels, kinds, medians):
         print(f"  {label:66s} {kind:6s} {median:7.1f} ms  x{median / medians[0]:.2f}")
     return 0

@@ -20,7 +20,8 @@ ablation does (a reader that decodes ahead would hand out a later frame's truth)
 
 from __future__ import annotations
 
-from typing import Any, Iterable, Iterator
+from collections.abc import Iterable, Iterator
+from typing import Any
 
 import numpy as np
 
@@ -89,7 +90,9 @@ class OracleGlobalDetector:
         self.detector.detect(previous_bgr, current_bgr)
         return as_detections(self.feed.boxes)
 
-    def detect_pair(self, previous_bgr: np.ndarray | None, current_bgr: np.ndarray, carry: Any = None) -> tuple[np.ndarray, Any]:
+    def detect_pair(
+        self, previous_bgr: np.ndarray | None, current_bgr: np.ndarray, carry: Any = None
+    ) -> tuple[np.ndarray, Any]:
         """As the real ``detect_pair``, with the real carry, so feature reuse costs what it costs
         (a detector without ``detect_pair`` runs ``detect`` and carries nothing, as the pipeline
         would run it)."""

@@ -1,4 +1,4 @@
-"""``gldt bench soak``: a long real-time replay through GLDTPipeline; memory, track table, drops.
+"""``gldt bench soak``: a long real-time replay through GLDTSystem; memory, track table, drops.
 
 A sense-and-avoid stack must run for the whole flight, so this replays a synthetic 1080p scene
 at the camera rate (``--fps``, default 30 Hz) for ``--minutes`` (default 10) and watches what
@@ -32,7 +32,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "soak",
         help="long real-time replay through the pipeline: memory growth, track table, dropped frames",
-        description="Replay a looped synthetic 1080p scene through GLDTPipeline at a fixed rate and "
+        description="Replay a looped synthetic 1080p scene through GLDTSystem at a fixed rate and "
         "report resident memory (start/end/growth), track-table size and processed/dropped frames.",
     )
     parser.add_argument("--minutes", type=float, default=10.0, help="replay length in minutes (default 10)")
@@ -41,13 +41,22 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seed", type=int, default=21, help="synthetic scene seed (default 21)")
     parser.add_argument("--size", default="1920x1080", help="frame size (default 1920x1080)")
     parser.add_argument("--targets", type=int, default=3, help="UAVs in the scene (default 3)")
-    parser.add_argument("--detector", choices=("auto", "shipped", "oracle"), default="auto",
-                        help="auto: shipped models if present, else ground-truth detectors (default auto)")
-    parser.add_argument("--tracker", choices=("jptrack", "bytetrack"), default=None,
-                        help="tracker (default: the config's, jptrack)")
+    parser.add_argument(
+        "--detector",
+        choices=("auto", "shipped", "oracle"),
+        default="auto",
+        help="auto: shipped models if present, else ground-truth detectors (default auto)",
+    )
+    parser.add_argument(
+        "--tracker", choices=("jptrack", "bytetrack"), default=None, help="tracker (default: the config's, jptrack)"
+    )
     parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration (defaults: Table I)")
-    parser.add_argument("--sample-every", type=float, default=None,
-                        help="seconds between RSS samples (default: 1/60 of the run, 0.5-10 s)")
+    parser.add_argument(
+        "--sample-every",
+        type=float,
+        default=None,
+        help="seconds between RSS samples (default: 1/60 of the run, 0.5-10 s)",
+    )
     parser.add_argument("--json", metavar="OUT.json", help="also write all numbers and the RSS samples as JSON")
     parser.set_defaults(func=handle_soak)
 
@@ -97,15 +106,15 @@ def ping_pong(k: int, n: int) -> int:
 
 def _build_pipeline(args: argparse.Namespace):
     """``(pipeline, oracle or None, detector description)``."""
-    from gldt_core.pipeline.config import load_config
-    from gldt_core.pipeline.pipeline import GLDTPipeline
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import GLDTSystem
 
     config = load_config(args.config)
     if args.tracker is not None:
         config = config.with_changes(tracker=args.tracker)
     if args.detector in ("auto", "shipped"):
         try:
-            return GLDTPipeline(config), None, "shipped ONNX models"
+            return GLDTSystem(config), None, "shipped ONNX models"
         except (FileNotFoundError, ValueError) as error:  # DetectorConfigError is a ValueError
             if args.detector == "shipped":
                 raise
@@ -113,7 +122,7 @@ def _build_pipeline(args: argparse.Namespace):
     else:
         note = "ground-truth detectors (--detector oracle)"
     oracle = OracleDetectors()
-    return GLDTPipeline(config, global_detector=oracle, local_detector=oracle), oracle, note
+    return GLDTSystem(config, global_detector=oracle, local_detector=oracle), oracle, note
 
 
 def handle_soak(args: argparse.Namespace) -> int:
@@ -213,18 +222,26 @@ def handle_soak(args: argparse.Namespace) -> int:
     state = pipeline.state
     mib = 1024.0 * 1024.0
 
-    print(f"gldt bench soak: {args.minutes:g} min at {args.fps:g} Hz, {size[0]}x{size[1]}, "
-          f"{args.loop_frames}-frame scene (seed {args.seed}) played ping-pong; detectors: {detector_note}; "
-          f"tracker: {pipeline.config.tracker.name}")
-    print(f"  frames: {delivered} delivered, {processed} processed, {dropped} dropped "
-          f"({100.0 * dropped / max(delivered, 1):.1f} %), {state.reinitialisations} re-initialisations, "
-          f"GD on {pipeline.global_share:.0%} of processed frames")
-    print(f"  per-frame cost {cost_ms:.1f} ms (decode + pipeline) = {load:.2f}x the {1000.0 * period:.1f} ms "
-          f"frame period ({'keeps up' if load <= 1.0 else 'cannot keep up: frames are dropped'})")
-    print(f"  RSS: {rss_setup / mib:.1f} MiB after set-up, {rss_start / mib:.1f} MiB at start (first frame), "
-          f"{rss_end / mib:.1f} MiB at end: growth {growth:+.2f} % ({growth_warm:+.2f} % after the first 10 %); "
-          f"min/max over {len(samples)} samples {min(r for _, r in samples) / mib:.1f}/"
-          f"{max(r for _, r in samples) / mib:.1f} MiB")
+    print(
+        f"gldt bench soak: {args.minutes:g} min at {args.fps:g} Hz, {size[0]}x{size[1]}, "
+        f"{args.loop_frames}-frame scene (seed {args.seed}) played ping-pong; detectors: {detector_note}; "
+        f"tracker: {pipeline.config.tracker.name}"
+    )
+    print(
+        f"  frames: {delivered} delivered, {processed} processed, {dropped} dropped "
+        f"({100.0 * dropped / max(delivered, 1):.1f} %), {state.reinitialisations} re-initialisations, "
+        f"GD on {pipeline.global_share:.0%} of processed frames"
+    )
+    print(
+        f"  per-frame cost {cost_ms:.1f} ms (decode + pipeline) = {load:.2f}x the {1000.0 * period:.1f} ms "
+        f"frame period ({'keeps up' if load <= 1.0 else 'cannot keep up: frames are dropped'})"
+    )
+    print(
+        f"  RSS: {rss_setup / mib:.1f} MiB after set-up, {rss_start / mib:.1f} MiB at start (first frame), "
+        f"{rss_end / mib:.1f} MiB at end: growth {growth:+.2f} % ({growth_warm:+.2f} % after the first 10 %); "
+        f"min/max over {len(samples)} samples {min(r for _, r in samples) / mib:.1f}/"
+        f"{max(r for _, r in samples) / mib:.1f} MiB"
+    )
     print(f"  track table: {tracks_now} live tracks at end, at most {max_tracks}, highest id reported {max_id}")
     if args.json:
         import os
@@ -232,15 +249,29 @@ def handle_soak(args: argparse.Namespace) -> int:
 
         out = Path(args.json)
         report = {
-            "minutes": args.minutes, "fps": args.fps, "size": list(size), "loop_frames": args.loop_frames,
-            "seed": args.seed, "detectors": detector_note, "tracker": pipeline.config.tracker.name,
-            "frames_delivered": delivered, "frames_processed": processed, "frames_dropped": dropped,
-            "reinitialisations": state.reinitialisations, "global_share": pipeline.global_share,
-            "cost_ms_per_frame": cost_ms, "load": load,
-            "rss_setup_bytes": rss_setup, "rss_start_bytes": rss_start, "rss_end_bytes": rss_end,
-            "rss_growth_percent": growth, "rss_growth_after_warmup_percent": growth_warm,
+            "minutes": args.minutes,
+            "fps": args.fps,
+            "size": list(size),
+            "loop_frames": args.loop_frames,
+            "seed": args.seed,
+            "detectors": detector_note,
+            "tracker": pipeline.config.tracker.name,
+            "frames_delivered": delivered,
+            "frames_processed": processed,
+            "frames_dropped": dropped,
+            "reinitialisations": state.reinitialisations,
+            "global_share": pipeline.global_share,
+            "cost_ms_per_frame": cost_ms,
+            "load": load,
+            "rss_setup_bytes": rss_setup,
+            "rss_start_bytes": rss_start,
+            "rss_end_bytes": rss_end,
+            "rss_growth_percent": growth,
+            "rss_growth_after_warmup_percent": growth_warm,
             "rss_samples": [[round(t, 3), rss] for t, rss in samples],
-            "tracks_at_end": tracks_now, "max_tracks": max_tracks, "highest_track_id": max_id,
+            "tracks_at_end": tracks_now,
+            "max_tracks": max_tracks,
+            "highest_track_id": max_id,
         }
         temp = out.with_name(f".{out.name}.partial")
         temp.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")

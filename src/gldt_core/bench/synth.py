@@ -81,14 +81,20 @@ def run(args: argparse.Namespace) -> int:
     render_fps = frames_done / total_render
     naive_fps = frames_done / total_naive
     jpeg_fps = frames_done / total_jpeg
-    print(f"gldt bench synth: {len(seeds)} scenes x {args.frames} frames, {width}x{height}, "
-          f"{args.targets} targets, cv2 threads={args.threads}")
+    print(
+        f"gldt bench synth: {len(seeds)} scenes x {args.frames} frames, {width}x{height}, "
+        f"{args.targets} targets, cv2 threads={args.threads}"
+    )
     print(f"  scene setup (geometry + canvas): {1000 * total_setup / len(seeds):8.1f} ms/scene")
     print(f"  render (no JPEG):                {render_fps:8.1f} frames/s  ({1000 / render_fps:.1f} ms/frame)")
-    print(f"  peer naive cv2 generator:        {naive_fps:8.1f} frames/s  -> render/naive = {render_fps / naive_fps:.2f}x")
+    print(
+        f"  peer naive cv2 generator:        {naive_fps:8.1f} frames/s  -> render/naive = {render_fps / naive_fps:.2f}x"
+    )
     sampled = len(seeds) * -(-args.frames // 10)
-    print(f"  peer JPEG encode q{args.jpeg_quality}:           {jpeg_fps:8.1f} frames/s  -> render/jpeg = "
-          f"{render_fps / jpeg_fps:.2f}x (avg {jpeg_bytes / sampled / 1024:.0f} KiB/frame)")
+    print(
+        f"  peer JPEG encode q{args.jpeg_quality}:           {jpeg_fps:8.1f} frames/s  -> render/jpeg = "
+        f"{render_fps / jpeg_fps:.2f}x (avg {jpeg_bytes / sampled / 1024:.0f} KiB/frame)"
+    )
     with_setup = frames_done / (total_render + total_setup)
     print(f"  render incl. scene setup:        {with_setup:8.1f} frames/s")
     verdict = "PASS" if render_fps >= 20.0 else "FAIL"

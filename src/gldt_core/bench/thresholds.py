@@ -21,8 +21,9 @@ threshold chosen here is then checked on clips it was not chosen on.
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any
 
 #: The grid printed by default: the pipeline's shipped pair first (the peer), then the pairs
 #: around it that the choice in ``SHIPPED_DETECTOR_SCORES`` was made from.
@@ -85,8 +86,8 @@ def sweep(
     detector threshold lives inside the detectors, so each pair gets its own.
     """
     from gldt_core.eval.mot_metrics import evaluate_many
-    from gldt_core.pipeline.pipeline import GLDTPipeline, build_tracker
-    from gldt_core.pipeline.runner import run_frames
+    from gldt_core.system.gldt_system import GLDTSystem, build_tracker
+    from gldt_core.system.runner import run_frames
 
     rows = []
     for pair in grid:
@@ -96,7 +97,7 @@ def sweep(
         frames = global_frames = seconds = 0.0
         false_boxes = other_frames = 0
         for sequence in [*drone_sequences, *other_sequences]:
-            pipeline = GLDTPipeline(
+            pipeline = GLDTSystem(
                 config, global_detector=global_detector, local_detector=local_detector, tracker=build_tracker(config)
             )
             result = run_frames(pipeline, sequence)
@@ -147,7 +148,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "once per DETECTOR:TRACKER threshold pair; print MOTA, IDF1, HOTA, GD share and false track boxes "
         "per frame on bird/airplane clips, each against the first pair.",
     )
-    parser.add_argument("--grid", default=DEFAULT_GRID, help=f"DETECTOR:TRACKER pairs, first is the peer (default {DEFAULT_GRID})")
+    parser.add_argument(
+        "--grid", default=DEFAULT_GRID, help=f"DETECTOR:TRACKER pairs, first is the peer (default {DEFAULT_GRID})"
+    )
     parser.add_argument("--skip", type=int, default=4, help="validation drone clips left for the ablation (default 4)")
     parser.add_argument("--clips", type=int, default=4, help="tuning drone clips after those (default 4)")
     parser.add_argument("--other-clips", type=int, default=4, help="validation bird/airplane clips (default 4)")
@@ -163,11 +166,11 @@ def handle_thresholds(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from gldt_core.bench.ablation import cache_source
-    from gldt_core.data import open_source
-    from gldt_core.detect.halmstad_split import halmstad_split
+    from gldt_core.eval.halmstad_split import halmstad_split
+    from gldt_core.io.sources import open_source
     from gldt_core.paths import halmstad_root
-    from gldt_core.pipeline.config import load_config
-    from gldt_core.pipeline.pipeline import build_detectors
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import build_detectors
 
     for name in ("skip", "clips", "other_clips", "clip_frames"):
         if getattr(args, name) < 0:
@@ -186,11 +189,11 @@ def handle_thresholds(args: argparse.Namespace) -> int:
         source = open_source(root / "videos" / f"{name}.mp4", gt=root / "gt" / f"{name}.txt")
         return cache_source(source, name, args.clip_frames or None)
 
-    rows = sweep(
-        [load(n) for n in drones], [load(n) for n in others], load_config(args.config), grid, build_detectors
+    rows = sweep([load(n) for n in drones], [load(n) for n in others], load_config(args.config), grid, build_detectors)
+    print(
+        f"tuning clips: {', '.join(drones)}; bird/airplane clips: {', '.join(others) or 'none'}; "
+        f"{args.clip_frames or 'all'} frames each"
     )
-    print(f"tuning clips: {', '.join(drones)}; bird/airplane clips: {', '.join(others) or 'none'}; "
-          f"{args.clip_frames or 'all'} frames each")
     print(format_table(rows))
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=2))

@@ -49,7 +49,7 @@ def _sim_source():
 
     try:
         sim = importlib.import_module("gldt_core.sim")
-        generator = getattr(sim, "scene_ground_truth")
+        generator = sim.scene_ground_truth
         return generator, "gldt_core.sim.scene_ground_truth (3 drones + birds, 1920x1080)"
     except (ImportError, AttributeError):
         from gldt_core.eval.streams import simple_multi_target_gt
@@ -155,8 +155,9 @@ def _run_accuracy(groups: dict, factories: dict, seed: int) -> dict:
             pairs = {}
             timings: list[float] = []
             for name, (gt, size) in seqs.items():
-                pred = track_detection_rows(make(size), streams[name], 30.0,
-                                            num_frames=int(gt[:, 0].max()), timings=timings)
+                pred = track_detection_rows(
+                    make(size), streams[name], 30.0, num_frames=int(gt[:, 0].max()), timings=timings
+                )
                 pairs[name] = (gt, pred)
             metrics = evaluate_many(pairs)["combined"]
             metrics["t_mean_ms"] = 1000 * float(np.mean(timings))
@@ -269,10 +270,12 @@ def _print_targets(results: dict, speed: dict, peer_names: list[str]) -> list[st
         b, j = results[base][group], results[full][group]
         ratio = j["IDSW"] / max(1, b["IDSW"])
         gain = 100 * (j["IDF1"] - b["IDF1"])
-        lines.append(f"[{group}] IDSW JPTrack/ByteTrack = {j['IDSW']}/{b['IDSW']} = {ratio:.2f} "
-                     f"(target <= 0.50: {'OK' if ratio <= 0.5 else 'MISSED'}); "
-                     f"IDF1 {100 * b['IDF1']:.2f} -> {100 * j['IDF1']:.2f} = {gain:+.2f} points "
-                     f"(target >= +10: {'OK' if gain >= 10 else 'MISSED'})")
+        lines.append(
+            f"[{group}] IDSW JPTrack/ByteTrack = {j['IDSW']}/{b['IDSW']} = {ratio:.2f} "
+            f"(target <= 0.50: {'OK' if ratio <= 0.5 else 'MISSED'}); "
+            f"IDF1 {100 * b['IDF1']:.2f} -> {100 * j['IDF1']:.2f} = {gain:+.2f} points "
+            f"(target >= +10: {'OK' if gain >= 10 else 'MISSED'})"
+        )
         peers = [p for p in peer_names if p in results]
         if peers:
             best_hota = max(peers, key=lambda p: results[p][group]["HOTA"])
@@ -281,14 +284,17 @@ def _print_targets(results: dict, speed: dict, peer_names: list[str]) -> list[st
             lines.append(
                 f"[{group}] vs best peer: HOTA {100 * j['HOTA']:.2f} vs {100 * ph:.2f} ({best_hota}), "
                 f"IDF1 {100 * j['IDF1']:.2f} vs {100 * pi:.2f} ({best_idf1}) "
-                f"(target >=: {'OK' if j['HOTA'] >= ph and j['IDF1'] >= pi else 'MISSED'})")
+                f"(target >=: {'OK' if j['HOTA'] >= ph and j['IDF1'] >= pi else 'MISSED'})"
+            )
     for targets, per in speed.items():
         j, b = per[full], per[base]
         ratio = j["mean_ms"] / max(1e-9, b["mean_ms"])
         budget = 1.0 if targets == 3 else 10.0
-        lines.append(f"[speed {targets} targets] JPTrack {j['mean_ms']:.3f} ms mean (budget {budget:g}: "
-                     f"{'OK' if j['mean_ms'] <= budget else 'MISSED'}), {ratio:.2f}x our ByteTrack "
-                     + ("(target <= 3x: " + ("OK" if ratio <= 3 else "MISSED") + ")" if targets == 3 else ""))
+        lines.append(
+            f"[speed {targets} targets] JPTrack {j['mean_ms']:.3f} ms mean (budget {budget:g}: "
+            f"{'OK' if j['mean_ms'] <= budget else 'MISSED'}), {ratio:.2f}x our ByteTrack "
+            + ("(target <= 3x: " + ("OK" if ratio <= 3 else "MISSED") + ")" if targets == 3 else "")
+        )
     return lines
 
 
@@ -315,8 +321,10 @@ def run_bench(args: argparse.Namespace) -> int:
         factories = {**ours, **peers}
         groups, notes = _load_sequences(args)
         print("gldt bench tracking")
-        print(f"  machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
-              "BLAS limited to 1 thread")
+        print(
+            f"  machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
+            "BLAS limited to 1 thread"
+        )
         for note in notes + [peer_note]:
             print(f"  {note}")
         if not groups:
@@ -324,8 +332,10 @@ def run_bench(args: argparse.Namespace) -> int:
         results = _run_accuracy(groups, factories, args.seed)
         _print_accuracy(results)
         speed, speed_source = _run_speed(factories, args.speed_frames, args.seed)
-        print(f"\n[update time per frame, ms; streams from {speed_source}, {args.speed_frames} frames, "
-              f"best of {SPEED_REPEATS}]")
+        print(
+            f"\n[update time per frame, ms; streams from {speed_source}, {args.speed_frames} frames, "
+            f"best of {SPEED_REPEATS}]"
+        )
         head = f"{'tracker':<26}{'3 mean':>9}{'3 p99':>9}{'50 mean':>9}{'50 p99':>9}"
         print(head)
         print("-" * len(head))
@@ -345,8 +355,13 @@ def run_bench(args: argparse.Namespace) -> int:
             print("  " + line)
     print(f"\n(total {time.time() - start:.0f} s)")
     if args.json:
-        payload = {"notes": notes + [peer_note], "accuracy": results,
-                   "speed": {str(k): v for k, v in speed.items()}, "kalman": kalman, "targets": target_lines}
+        payload = {
+            "notes": notes + [peer_note],
+            "accuracy": results,
+            "speed": {str(k): v for k, v in speed.items()},
+            "kalman": kalman,
+            "targets": target_lines,
+        }
         tmp = args.json + ".part"
         with open(tmp, "w", encoding="utf-8") as handle:
             json.dump(payload, handle, indent=2, sort_keys=True)

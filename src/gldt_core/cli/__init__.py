@@ -12,7 +12,7 @@ import argparse
 import importlib
 import pkgutil
 import sys
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 
 class CliError(Exception):
@@ -33,9 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
         if module_info.name.startswith("_"):
             continue
         module = importlib.import_module(f"{__name__}.{module_info.name}")
-        register: Callable[[argparse._SubParsersAction], None] | None = getattr(
-            module, "register", None
-        )
+        register: Callable[[argparse._SubParsersAction], None] | None = getattr(module, "register", None)
         if register is not None:
             register(subparsers)
     return parser

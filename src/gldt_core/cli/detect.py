@@ -19,9 +19,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--detector", choices=("global", "local"), default="global")
     parser.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
     parser.add_argument("--score-threshold", type=float, default=0.25)
-    parser.add_argument("--classes", choices=("drone", "all"), default="drone", help="write drone boxes only (default) or every class")
+    parser.add_argument(
+        "--classes", choices=("drone", "all"), default="drone", help="write drone boxes only (default) or every class"
+    )
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads")
-    parser.add_argument("--providers", default="CPUExecutionProvider", help="comma-separated onnxruntime execution providers")
+    parser.add_argument(
+        "--providers", default="CPUExecutionProvider", help="comma-separated onnxruntime execution providers"
+    )
     parser.add_argument("--no-progress", action="store_true")
     parser.set_defaults(func=_run)
 
@@ -37,8 +41,16 @@ def _run(args: argparse.Namespace) -> int:
     cls = GlobalDetector if args.detector == "global" else LocalDetector
     # Asked about drones only, a box is a drone whenever its drone score passes (decode_output).
     classes = (DRONE_CLASS_ID,) if args.classes == "drone" else None
-    detector = cls(model_path=args.model, providers=providers, score_threshold=args.score_threshold, num_threads=args.threads, classes=classes)
-    frames = tqdm(iter_video_frames(args.video), desc=f"detect ({args.detector})", unit="frame", disable=args.no_progress)
+    detector = cls(
+        model_path=args.model,
+        providers=providers,
+        score_threshold=args.score_threshold,
+        num_threads=args.threads,
+        classes=classes,
+    )
+    frames = tqdm(
+        iter_video_frames(args.video), desc=f"detect ({args.detector})", unit="frame", disable=args.no_progress
+    )
     roi = int(getattr(detector, "card", {}).get("roi_side", 300))
     rows = detect_frames(frames, detector, args.detector, roi_side=roi)
     if args.classes == "drone":

@@ -28,8 +28,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--pred", required=True, help="predicted tracks MOT file or folder")
     parser.add_argument("--json", action="store_true", help="print JSON (fractions) instead of a table")
     parser.add_argument("--target-classes", default="1", help="comma-separated gt classes to score (default 1)")
-    parser.add_argument("--distractor-classes", default="2,3,4",
-                        help="comma-separated distractor gt classes (default 2,3,4; empty for none)")
+    parser.add_argument(
+        "--distractor-classes",
+        default="2,3,4",
+        help="comma-separated distractor gt classes (default 2,3,4; empty for none)",
+    )
     parser.set_defaults(func=run_eval)
 
 

@@ -15,12 +15,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "input size, strides, classes, training data and validation metrics, and the torch-vs-onnxruntime check."
         ),
     )
-    parser.add_argument("checkpoint", help="checkpoint written by `gldt train` (or an .onnx model with --int8 or --rewrite-windows)")
-    parser.add_argument("--out", default=None, help="output .onnx path (card written next to it); not with --feature-reuse")
+    parser.add_argument(
+        "checkpoint", help="checkpoint written by `gldt train` (or an .onnx model with --int8 or --rewrite-windows)"
+    )
+    parser.add_argument(
+        "--out", default=None, help="output .onnx path (card written next to it); not with --feature-reuse"
+    )
     parser.add_argument("--name", default=None, help="model name for the card (default: file stem)")
-    parser.add_argument("--size", type=int, nargs=2, metavar=("W", "H"), default=None, help="example/nominal input size (default: global 640 384, local from the config)")
+    parser.add_argument(
+        "--size",
+        type=int,
+        nargs=2,
+        metavar=("W", "H"),
+        default=None,
+        help="example/nominal input size (default: global 640 384, local from the config)",
+    )
     parser.add_argument("--note", default="", help="free text for the card (e.g. how the model was trained)")
-    parser.add_argument("--int8", action="store_true", help="quantize an exported .onnx (static int8, calibrated on Halmstad training clips; no torch needed)")
+    parser.add_argument(
+        "--int8",
+        action="store_true",
+        help="quantize an exported .onnx (static int8, calibrated on Halmstad training clips; no torch needed)",
+    )
     parser.add_argument("--calibration-root", default=None, help="Halmstad clips for --int8 calibration")
     parser.add_argument(
         "--rewrite-windows",
@@ -38,12 +53,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_run)
 
 
-def _write_feature_reuse(model: "Path") -> None:
+def _write_feature_reuse(model: Path) -> None:
     try:
         import onnx  # noqa: F401
     except ImportError as error:
-        raise ValueError(f"--feature-reuse needs the onnx package (pip install onnx; in the test and train extras): {error}") from error
-    from gldt_core.detect.feature_split import write_feature_reuse
+        raise ValueError(
+            f"--feature-reuse needs the onnx package (pip install onnx; in the test and train extras): {error}"
+        ) from error
+    from gldt_core.export.feature_split import write_feature_reuse
 
     result = write_feature_reuse(model)
     print(
@@ -52,7 +69,7 @@ def _write_feature_reuse(model: "Path") -> None:
     )
 
 
-def _refresh_or_drop_split_pair(model: "Path") -> None:
+def _refresh_or_drop_split_pair(model: Path) -> None:
     """After ``model`` was (over)written: a split pair next to it belongs to the file it replaced.
 
     Split the new file instead; where that cannot be done (a quantized graph the split does not
@@ -60,7 +77,7 @@ def _refresh_or_drop_split_pair(model: "Path") -> None:
     model whole rather than warn about a stale pair on every start.
     """
     from gldt_core.detect.feature_reuse import features_path, reuse_path
-    from gldt_core.detect.feature_split import FeatureSplitError
+    from gldt_core.export.feature_split import FeatureSplitError
 
     stale = [path for path in (features_path(model), reuse_path(model)) if path.is_file()]
     if not stale:
@@ -70,27 +87,41 @@ def _refresh_or_drop_split_pair(model: "Path") -> None:
     except FeatureSplitError as error:
         for path in stale:
             path.unlink()
-        print(f"removed {' and '.join(p.name for p in stale)}: split from the file {model} replaced, and the new one cannot be split ({error})")
+        print(
+            f"removed {' and '.join(p.name for p in stale)}: split from the file {model} replaced, and the new one cannot be split ({error})"
+        )
 
 
 def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    modes = [flag for flag, on in (("--int8", args.int8), ("--rewrite-windows", args.rewrite_windows), ("--feature-reuse", args.feature_reuse)) if on]
+    modes = [
+        flag
+        for flag, on in (
+            ("--int8", args.int8),
+            ("--rewrite-windows", args.rewrite_windows),
+            ("--feature-reuse", args.feature_reuse),
+        )
+        if on
+    ]
     if len(modes) > 1:
-        raise ValueError(f"{' and '.join(modes)} are separate steps: run one export per step, each on the file the last one wrote")
+        raise ValueError(
+            f"{' and '.join(modes)} are separate steps: run one export per step, each on the file the last one wrote"
+        )
     if args.feature_reuse:
         if Path(args.checkpoint).suffix != ".onnx":
             raise ValueError(f"--feature-reuse splits an exported .onnx model, got {args.checkpoint}")
         if args.out is not None:
-            raise ValueError("--feature-reuse writes NAME.features.onnx and NAME.reuse.onnx next to the model (where the runtime looks); drop --out")
+            raise ValueError(
+                "--feature-reuse writes NAME.features.onnx and NAME.reuse.onnx next to the model (where the runtime looks); drop --out"
+            )
         _write_feature_reuse(Path(args.checkpoint))
         return 0
     if args.out is None:
         raise ValueError("--out is required (the .onnx file to write)")
     if args.rewrite_windows:
         from gldt_core.detect.feature_reuse import features_path
-        from gldt_core.detect.window_rewrite import rewrite_model_file
+        from gldt_core.export.window_rewrite import rewrite_model_file
 
         if Path(args.checkpoint).suffix != ".onnx":
             raise ValueError(f"--rewrite-windows rewrites an exported .onnx model, got {args.checkpoint}")
@@ -101,7 +132,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
 
     if args.int8:
-        from gldt_core.detect.quantize import quantize_model
+        from gldt_core.export.quantize import quantize_model
 
         if Path(args.checkpoint).suffix != ".onnx":
             raise ValueError(f"--int8 quantizes an exported .onnx model, got {args.checkpoint}")
@@ -113,8 +144,8 @@ def _run(args: argparse.Namespace) -> int:
         return 0
 
     try:
-        from gldt_core.nn.export import export_onnx, example_inputs, torch_vs_onnx
-        from gldt_core.nn.train import load_checkpoint
+        from gldt_core.export.onnx_export import example_inputs, export_onnx, torch_vs_onnx
+        from gldt_core.training.train import load_checkpoint
     except ImportError as error:
         raise ValueError(f"export needs torch and onnx (pip install torch==2.13.0 onnx): {error}") from error
 
@@ -133,7 +164,9 @@ def _run(args: argparse.Namespace) -> int:
     card = {
         "name": args.name or out.stem,
         "task": task,
-        "architecture": "AM-YOLO (dual-frame, STFF)" if model.spec.stff_levels else ("YOLO11-style, no STFF" if task == "global" else "YOLO11-P2-style local ROI detector"),
+        "architecture": "AM-YOLO (dual-frame, STFF)"
+        if model.spec.stff_levels
+        else ("YOLO11-style, no STFF" if task == "global" else "YOLO11-P2-style local ROI detector"),
         "checkpoint_epoch": ckpt.get("epoch"),
         "validation_during_training": ckpt.get("metrics"),
         "training_data": ckpt.get("data"),
@@ -146,14 +179,23 @@ def _run(args: argparse.Namespace) -> int:
         import csv
 
         with log.open() as fh:
-            card["training_log"] = [{k: (round(float(v), 4) if v not in ("", None) else None) for k, v in row.items()} for row in csv.DictReader(fh)]
+            card["training_log"] = [
+                {k: (round(float(v), 4) if v not in ("", None) else None) for k, v in row.items()}
+                for row in csv.DictReader(fh)
+            ]
     if task == "local":
         card["roi_side"] = int(ckpt["config"]["data"].get("val_roi", 300))
     card = export_onnx(model, out, width, height, card)
     diffs = []
     for seed in (0, 1):
-        diffs.append(torch_vs_onnx(model, out, example_inputs(model, width, height, batch=1 if task == "global" else 4, seed=seed)))
-    print(f"wrote {out} ({card['size_bytes'] / 1e6:.2f} MB) and {out.with_suffix('.json')}; torch vs onnxruntime max |diff| {max(diffs):.2e}")
+        diffs.append(
+            torch_vs_onnx(
+                model, out, example_inputs(model, width, height, batch=1 if task == "global" else 4, seed=seed)
+            )
+        )
+    print(
+        f"wrote {out} ({card['size_bytes'] / 1e6:.2f} MB) and {out.with_suffix('.json')}; torch vs onnxruntime max |diff| {max(diffs):.2e}"
+    )
     if task == "global" and model.spec.stff_levels:
         _write_feature_reuse(out)
     return 0

@@ -23,7 +23,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "MOTChallenge tracks (frame,id,x,y,w,h,score,-1,-1,-1).",
     )
     source = parser.add_mutually_exclusive_group(required=True)
-    source.add_argument("--video", metavar="IN", help="video file (mp4, avi, ...) or a synthetic scene 'synth:seed=3,frames=90'")
+    source.add_argument(
+        "--video", metavar="IN", help="video file (mp4, avi, ...) or a synthetic scene 'synth:seed=3,frames=90'"
+    )
     source.add_argument("--frames", metavar="DIR", help="folder of images or a MOTChallenge sequence folder")
     source.add_argument("--bag", metavar="BAG", help="ROS 2 bag (MCAP) with an image topic")
     parser.add_argument("--out", metavar="TRACKS.txt", required=True, help="MOTChallenge tracks to write")
@@ -34,7 +36,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument(
-        "--prefetch", type=int, default=2, metavar="N",
+        "--prefetch",
+        type=int,
+        default=2,
+        metavar="N",
         help="read and decode up to N frames ahead in a background thread (default 2; 0: decode inline, one frame at a time)",
     )
     parser.set_defaults(func=handle_run)
@@ -50,10 +55,10 @@ def handle_run(args: argparse.Namespace) -> int:
 
     from gldt_core.cli import CliError
     from gldt_core.io.mot import read_mot, write_mot
-    from gldt_core.pipeline.config import load_config
-    from gldt_core.pipeline.pipeline import GLDTPipeline
-    from gldt_core.pipeline.render import OverlayVideoWriter, save_run_plot
-    from gldt_core.pipeline.runner import run_frames
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import GLDTSystem
+    from gldt_core.system.runner import run_frames
+    from gldt_core.viz.render import OverlayVideoWriter, save_run_plot
 
     logging.basicConfig(level=logging.WARNING, format="gldt run: %(levelname)s: %(message)s")
     if args.max_frames is not None and args.max_frames < 1:
@@ -68,9 +73,9 @@ def handle_run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"ground truth not found: {args.gt}")
 
     config = load_config(args.config)
-    pipeline = GLDTPipeline(config)  # loads the models now: a bad model file fails here
+    pipeline = GLDTSystem(config)  # loads the models now: a bad model file fails here
 
-    from gldt_core.data import open_source
+    from gldt_core.io.sources import open_source
 
     source = open_source(input_text, gt=args.gt)
     fps = float(getattr(source, "fps", 0.0) or 30.0)
@@ -100,7 +105,12 @@ def handle_run(args: argparse.Namespace) -> int:
     completed = False
     try:
         result = run_frames(
-            pipeline, source, max_frames=args.max_frames, on_frame=on_frame, collect_ground_truth=True, prefetch=args.prefetch
+            pipeline,
+            source,
+            max_frames=args.max_frames,
+            on_frame=on_frame,
+            collect_ground_truth=True,
+            prefetch=args.prefetch,
         )
         completed = True
     finally:

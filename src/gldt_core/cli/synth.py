@@ -18,21 +18,36 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
     parser.add_argument("--frames", type=int, default=90, help="number of frames (default 90)")
     parser.add_argument("--size", default="1920x1080", help="WIDTHxHEIGHT (default 1920x1080)")
-    parser.add_argument("--targets", default="1-3",
-                        help="number of UAVs, N or A-B (the seed picks within the range; default 1-3)")
+    parser.add_argument(
+        "--targets", default="1-3", help="number of UAVs, N or A-B (the seed picks within the range; default 1-3)"
+    )
     parser.add_argument("--target-size", default="6-60", help="UAV span range in px, A-B (default 6-60)")
     parser.add_argument("--birds", type=int, default=None, help="distractor birds (default: seed decides)")
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate (default 30)")
-    parser.add_argument("--split", choices=["train", "val", "test"],
-                        help="take the scene from a preset split instead (with --index)")
+    parser.add_argument(
+        "--split", choices=["train", "val", "test"], help="take the scene from a preset split instead (with --index)"
+    )
     parser.add_argument("--index", type=int, default=0, help="scene index within --split")
-    parser.add_argument("--jpeg-quality", type=int, default=95,
-                        help="JPEG quality of img1/*.jpg and compressed bag images (default 95)")
-    parser.add_argument("--bag", nargs="?", const="", default=None, metavar="BAG",
-                        help="also write a rosbag2 MCAP (default path: OUT/bag)")
+    parser.add_argument(
+        "--jpeg-quality", type=int, default=95, help="JPEG quality of img1/*.jpg and compressed bag images (default 95)"
+    )
+    parser.add_argument(
+        "--bag",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="BAG",
+        help="also write a rosbag2 MCAP (default path: OUT/bag)",
+    )
     parser.add_argument("--raw", action="store_true", help="bag images as sensor_msgs/Image bgr8, not JPEG")
-    parser.add_argument("--preview", nargs="?", const="", default=None, metavar="PNG",
-                        help="write a contact sheet PNG (default: OUT/preview.png or ./synth-preview.png)")
+    parser.add_argument(
+        "--preview",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="PNG",
+        help="write a contact sheet PNG (default: OUT/preview.png or ./synth-preview.png)",
+    )
     parser.add_argument("--force", action="store_true", help="replace existing outputs")
     parser.set_defaults(func=run)
 
@@ -51,9 +66,15 @@ def build_spec(args: argparse.Namespace) -> object:
         raise ValueError(f"--targets must be >= 0, got {args.targets!r}")
     size_low, size_high = parse_range(args.target_size)
     seed_rng_targets = low if low == high else low + (args.seed * 2654435761 % (high - low + 1))
-    return SceneSpec(seed=args.seed, frames=args.frames, size=parse_size(args.size),
-                     targets=seed_rng_targets, fps=args.fps,
-                     target_size=(float(size_low), float(size_high)), birds=args.birds)
+    return SceneSpec(
+        seed=args.seed,
+        frames=args.frames,
+        size=parse_size(args.size),
+        targets=seed_rng_targets,
+        fps=args.fps,
+        target_size=(float(size_low), float(size_high)),
+        birds=args.birds,
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -75,17 +96,23 @@ def run(args: argparse.Namespace) -> int:
     spec = build_spec(args)
     renderer = SceneRenderer(spec)  # type: ignore[arg-type]
     if args.out is not None:
-        summary = write_mot_sequence(renderer, Path(args.out), jpeg_quality=args.jpeg_quality,
-                                     overwrite=args.force)
+        summary = write_mot_sequence(renderer, Path(args.out), jpeg_quality=args.jpeg_quality, overwrite=args.force)
         print(f"wrote {summary}")
     if args.bag is not None:
-        from gldt_core.data.synth import SynthSource
         from gldt_core.io.bag import write_bag
+        from gldt_core.io.synth_source import SynthSource
 
         bag_path = Path(args.bag) if args.bag else Path(args.out) / "bag"
         source = SynthSource(spec)
-        result = write_bag(bag_path, source, size=source.size, camera_matrix=source.camera_matrix,
-                           compressed=not args.raw, jpeg_quality=args.jpeg_quality, overwrite=args.force)
+        result = write_bag(
+            bag_path,
+            source,
+            size=source.size,
+            camera_matrix=source.camera_matrix,
+            compressed=not args.raw,
+            jpeg_quality=args.jpeg_quality,
+            overwrite=args.force,
+        )
         print(f"wrote bag {result.path} ({result.frames} frames, {result.bytes / 1e6:.1f} MB)")
     if args.preview is not None:
         from gldt_core.sim.preview import scene_preview

@@ -25,8 +25,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--fps", type=float, default=30.0, help="frame rate of the stream (default 30)")
     parser.add_argument("--no-jcma", action="store_true", help="JPTrack: IoU association instead of JCMA")
     parser.add_argument("--no-pmr", action="store_true", help="JPTrack: disable PMR recovery")
-    parser.add_argument("--image-size", type=int, nargs=2, metavar=("W", "H"), default=(1920, 1080),
-                        help="image size for PMR's relative positions (default 1920 1080)")
+    parser.add_argument(
+        "--image-size",
+        type=int,
+        nargs=2,
+        metavar=("W", "H"),
+        default=(1920, 1080),
+        help="image size for PMR's relative positions (default 1920 1080)",
+    )
     parser.set_defaults(func=run_track)
 
 
@@ -53,6 +59,8 @@ def run_track(args: argparse.Namespace) -> int:
     write_mot(args.out, tracks)
     ids = len(set(tracks[:, 1].astype(int).tolist())) if len(tracks) else 0
     frames = int(rows[:, 0].max()) if len(rows) else 0
-    print(f"{args.tracker}: {frames} frames, {len(rows)} detections -> {len(tracks)} boxes, {ids} tracks; "
-          f"wrote {args.out}")
+    print(
+        f"{args.tracker}: {frames} frames, {len(rows)} detections -> {len(tracks)} boxes, {ids} tracks; "
+        f"wrote {args.out}"
+    )
     return 0

@@ -18,15 +18,25 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--epochs", type=int, default=None, help="override train.epochs")
     parser.add_argument("--steps-per-epoch", type=int, default=None, help="override train.steps_per_epoch")
     parser.add_argument("--device", default=None, help="override train.device: auto, cpu, cuda, cuda:N")
-    parser.add_argument("--workers", type=int, default=None, help="override data.load_workers and train.loader_workers (worker processes for decoding and augmentation)")
-    parser.add_argument("--max-wall-s", type=float, default=None, help="override train.max_wall_s: finish the schedule within this many seconds")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="override data.load_workers and train.loader_workers (worker processes for decoding and augmentation)",
+    )
+    parser.add_argument(
+        "--max-wall-s",
+        type=float,
+        default=None,
+        help="override train.max_wall_s: finish the schedule within this many seconds",
+    )
     parser.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     parser.set_defaults(func=_run)
 
 
 def _run(args: argparse.Namespace) -> int:
     try:
-        from gldt_core.nn.train import load_config, train
+        from gldt_core.training.train import load_config, train
     except ImportError as error:  # torch is an optional extra
         raise ValueError(f"training needs torch (pip install torch==2.13.0 onnx): {error}") from error
 

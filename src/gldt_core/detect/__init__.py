@@ -9,6 +9,12 @@
 Boxes are full-frame pixels; class_id is the MOTChallenge class code (1 drone, 2 bird, 3 airplane).
 """
 
-from .runtime import DRONE_CLASS_ID, DetectorConfigError, GlobalDetector, LocalDetector, shipped_model_path
+from gldt_core.detect.runtime import (
+    DRONE_CLASS_ID,
+    DetectorConfigError,
+    GlobalDetector,
+    LocalDetector,
+    shipped_model_path,
+)
 
 __all__ = ["DRONE_CLASS_ID", "DetectorConfigError", "GlobalDetector", "LocalDetector", "shipped_model_path"]

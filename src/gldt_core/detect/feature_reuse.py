@@ -1,6 +1,6 @@
 """AM-YOLO with the previous GD frame's backbone features instead of recomputing them.
 
-:mod:`gldt_core.detect.feature_split` (export time) writes two files next to an AM-YOLO export
+:mod:`gldt_core.export.feature_split` (export time) writes two files next to an AM-YOLO export
 ``NAME.onnx``: ``NAME.features.onnx`` (a frame -> the features up to STFF's first level) and
 ``NAME.reuse.onnx`` (current frame + those features of the previous frame -> detections and the
 current frame's features). Their outputs equal the original model's (checked when written), so
@@ -16,8 +16,9 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -86,7 +87,7 @@ def load_feature_reuse(
     only slower); True requires it (such files raise :class:`DetectorConfigError`); False never
     loads it.
     """
-    from .runtime import DetectorConfigError, open_session
+    from gldt_core.detect.runtime import DetectorConfigError, open_session
 
     if wanted is False:
         return None
@@ -95,7 +96,9 @@ def load_feature_reuse(
     missing = [str(p) for p in (features_file, reuse_file) if not p.is_file()]
     if missing:
         if wanted:
-            raise DetectorConfigError(f"{model_path}: feature reuse asked for, but {', '.join(missing)} not found; {regenerate}")
+            raise DetectorConfigError(
+                f"{model_path}: feature reuse asked for, but {', '.join(missing)} not found; {regenerate}"
+            )
         return None
 
     def unusable(problem: str) -> None:
@@ -104,10 +107,15 @@ def load_feature_reuse(
         LOG.warning("%s: %s; running the full model on every frame pair (%s)", model_path, problem, regenerate)
 
     try:
-        features_session, _ = open_session(features_file, providers, num_threads, "input (1, 3, H, W) float32 RGB 'current'")
+        features_session, _ = open_session(
+            features_file, providers, num_threads, "input (1, 3, H, W) float32 RGB 'current'"
+        )
         raw = features_session.get_modelmeta().custom_metadata_map.get(METADATA_KEY)
         pairing = json.loads(raw) if raw else None
-    except (DetectorConfigError, json.JSONDecodeError) as error:  # a truncated copy, an LFS pointer, a provider that cannot build it
+    except (
+        DetectorConfigError,
+        json.JSONDecodeError,
+    ) as error:  # a truncated copy, an LFS pointer, a provider that cannot build it
         return unusable(f"cannot use {features_file.name} ({str(error).splitlines()[0][:200]})")
     if not isinstance(pairing, dict) or not {"source_sha256", "reuse_sha256", "channels", "stride"} <= set(pairing):
         return unusable(f"{features_file} has no valid '{METADATA_KEY}' metadata")
@@ -116,7 +124,9 @@ def load_feature_reuse(
     if pairing["reuse_sha256"] != _sha256(reuse_file):
         return unusable(f"{reuse_file} is not the file {features_file.name} was written with")
     try:
-        reuse_session, _ = open_session(reuse_file, providers, num_threads, "inputs 'current' (1, 3, H, W) and 'previous_features'")
+        reuse_session, _ = open_session(
+            reuse_file, providers, num_threads, "inputs 'current' (1, 3, H, W) and 'previous_features'"
+        )
     except DetectorConfigError as error:
         return unusable(f"cannot use {reuse_file.name} ({str(error).splitlines()[0][:200]})")
     names = {i.name for i in reuse_session.get_inputs()}

@@ -126,7 +126,9 @@ def decode_output(
     if channels is not None:
         channels = np.asarray(channels, dtype=np.int64)
         if channels.ndim != 1 or len(channels) == 0 or channels.min() < 0 or channels.max() >= len(scores_all):
-            raise ValueError(f"channels must be a non-empty list of class indices below {len(scores_all)}, got {channels.tolist()}")
+            raise ValueError(
+                f"channels must be a non-empty list of class indices below {len(scores_all)}, got {channels.tolist()}"
+            )
         scores_all = scores_all[channels]
     cls = scores_all.argmax(0)
     score = scores_all[cls, np.arange(scores_all.shape[1])]

@@ -14,14 +14,15 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from .feature_reuse import FeatureReuse, features_path, load_feature_reuse, reuse_path
-from .postprocess import ensure_bgr, rect_input_size
-from .staged import GlobalCarry
+from gldt_core.detect.feature_reuse import FeatureReuse, features_path, load_feature_reuse, reuse_path
+from gldt_core.detect.postprocess import ensure_bgr, rect_input_size
+from gldt_core.detect.staged import GlobalCarry
 
 MODELS_DIR = Path(__file__).resolve().parent.parent / "models"
 DEFAULT_GLOBAL_MODEL = MODELS_DIR / "global_amyolo.onnx"
@@ -74,14 +75,18 @@ def open_session(
 
     path = Path(model_path)
     if not path.is_file():
-        raise DetectorConfigError(f"{path}: detector model not found{wanted or ' (expected an ONNX file exported by `gldt export`)'}")
+        raise DetectorConfigError(
+            f"{path}: detector model not found{wanted or ' (expected an ONNX file exported by `gldt export`)'}"
+        )
     available = ort.get_available_providers()
     providers = list(providers)
     if not providers:
         raise DetectorConfigError(f"{path}: no execution providers given; available: {available}")
     unknown = [p for p in providers if p not in available]
     if unknown:
-        raise DetectorConfigError(f"{path}: execution providers {unknown} are not available in this onnxruntime build; available: {available}")
+        raise DetectorConfigError(
+            f"{path}: execution providers {unknown} are not available in this onnxruntime build; available: {available}"
+        )
     options = ort.SessionOptions()
     if num_threads is not None:
         if num_threads < 1:
@@ -131,7 +136,9 @@ def _output_classes(session: Any, path: Path, card: dict[str, Any]) -> int:
         return out.shape[1] - 4
     classes = card.get("classes") or card.get("class_ids")
     if not classes:
-        raise DetectorConfigError(f"{path}: output {out.name!r} has a dynamic class axis and no model card lists the classes; {expected}")
+        raise DetectorConfigError(
+            f"{path}: output {out.name!r} has a dynamic class axis and no model card lists the classes; {expected}"
+        )
     return len(classes)
 
 
@@ -161,7 +168,9 @@ class _OnnxDetector:
             raise DetectorConfigError(f"score_threshold must be in [0, 1], got {score_threshold}")
         self.model_path = Path(model_path) if model_path is not None else default_path
         self.providers, self.num_threads = tuple(providers), num_threads
-        self._session, self.card = open_session(self.model_path, providers, num_threads, self.EXPECTATION, optimize_graph)
+        self._session, self.card = open_session(
+            self.model_path, providers, num_threads, self.EXPECTATION, optimize_graph
+        )
         self._reopen_optimized = False  # set by a subclass that opened the file unoptimised only to check it
         self.score_threshold = float(score_threshold)
         self.iou_threshold = float(iou_threshold)
@@ -221,14 +230,26 @@ class GlobalDetector(_OnnxDetector):
         feature_reuse: bool | None = None,
     ):
         if feature_reuse and not optimize_graph:
-            raise DetectorConfigError("feature_reuse=True runs the model, but optimize_graph=False opens it for its geometry only")
+            raise DetectorConfigError(
+                "feature_reuse=True runs the model, but optimize_graph=False opens it for its geometry only"
+            )
         # Where a split pair lies next to the model, the model is checked first, opened unoptimised
         # (4x faster) so errors name the file given, and optimised only if the pair cannot be used
         # or someone asks for ``session``. Without one it is opened optimised straight away.
         path = Path(model_path) if model_path is not None else DEFAULT_GLOBAL_MODEL
-        split_first = optimize_graph and feature_reuse is not False and features_path(path).is_file() and reuse_path(path).is_file()
+        split_first = (
+            optimize_graph
+            and feature_reuse is not False
+            and features_path(path).is_file()
+            and reuse_path(path).is_file()
+        )
         inputs = self._open(
-            model_path, DEFAULT_GLOBAL_MODEL, providers, num_threads, score_threshold, iou_threshold,
+            model_path,
+            DEFAULT_GLOBAL_MODEL,
+            providers,
+            num_threads,
+            score_threshold,
+            iou_threshold,
             optimize_graph and not split_first,
         )
         if len(inputs) not in (1, 2):
@@ -245,7 +266,9 @@ class GlobalDetector(_OnnxDetector):
         size = self.card.get("input_size", [640, 384])
         self.long_side = int(long_side or self.card.get("runtime_long_side", max(size)))
         if self.long_side % self.multiple:
-            raise DetectorConfigError(f"{self.model_path}: long_side {self.long_side} must be a multiple of {self.multiple}")
+            raise DetectorConfigError(
+                f"{self.model_path}: long_side {self.long_side} must be a multiple of {self.multiple}"
+            )
         self._read_classes(classes)
         self.max_detections = int(max_detections)
         self.feature_reuse: FeatureReuse | None = None
@@ -287,12 +310,16 @@ class GlobalDetector(_OnnxDetector):
         size (the frame size changed) is ignored and the previous frame processed afresh.
         """
         if carry is not None and not isinstance(carry, GlobalCarry):
-            raise TypeError(f"carry must be the GlobalCarry an earlier detect_pair returned, got {type(carry).__name__}")
+            raise TypeError(
+                f"carry must be the GlobalCarry an earlier detect_pair returned, got {type(carry).__name__}"
+            )
         current = ensure_bgr(current_bgr, "current frame")
         previous = current if previous_bgr is None else ensure_bgr(previous_bgr, "previous frame")
         if previous.shape != current.shape:
-            raise ValueError(f"previous frame {previous.shape[1]}x{previous.shape[0]} and current frame {current.shape[1]}x{current.shape[0]} differ in size")
-        from .staged import detect_global_streamed, prepare_global_input
+            raise ValueError(
+                f"previous frame {previous.shape[1]}x{previous.shape[0]} and current frame {current.shape[1]}x{current.shape[0]} differ in size"
+            )
+        from gldt_core.detect.staged import detect_global_streamed, prepare_global_input
 
         current_input, mapping = prepare_global_input(self, current)
         previous_features = None
@@ -325,12 +352,16 @@ class LocalDetector(_OnnxDetector):
     ):
         inputs = self._open(model_path, DEFAULT_LOCAL_MODEL, providers, num_threads, score_threshold, iou_threshold)
         if len(inputs) != 1:
-            raise DetectorConfigError(f"{self.model_path}: has {len(inputs)} inputs; a local detector needs one (N, 3, S, S) batch of ROI crops")
+            raise DetectorConfigError(
+                f"{self.model_path}: has {len(inputs)} inputs; a local detector needs one (N, 3, S, S) batch of ROI crops"
+            )
         inp = inputs[0]
         _check_image_input(self.model_path, inp, "(N, 3, S, S) float32 RGB ROI crops with a fixed square size S")
         h, w = inp.shape[2], inp.shape[3]
         if not (isinstance(h, int) and isinstance(w, int) and h == w):
-            raise DetectorConfigError(f"{self.model_path}: input {inp.name!r} has shape {inp.shape}; expected (N, 3, S, S) with a fixed square S")
+            raise DetectorConfigError(
+                f"{self.model_path}: input {inp.name!r} has shape {inp.shape}; expected (N, 3, S, S) with a fixed square S"
+            )
         self.input_name = inp.name
         self.input_side = int(h)
         self._read_classes(classes)
@@ -351,7 +382,9 @@ class LocalDetector(_OnnxDetector):
             raise ValueError(f"roi {int(np.flatnonzero(bad)[0])} is empty or inverted: {rois[bad][0].tolist()}")
         outside = (rois[:, 2] <= 0) | (rois[:, 3] <= 0) | (rois[:, 0] >= frame_w) | (rois[:, 1] >= frame_h)
         if outside.any():
-            raise ValueError(f"roi {int(np.flatnonzero(outside)[0])} {rois[outside][0].tolist()} lies outside the {frame_w}x{frame_h} frame")
+            raise ValueError(
+                f"roi {int(np.flatnonzero(outside)[0])} {rois[outside][0].tolist()} lies outside the {frame_w}x{frame_h} frame"
+            )
         return rois
 
     @staticmethod
@@ -371,7 +404,7 @@ class LocalDetector(_OnnxDetector):
         rois = self._check_rois(rois, w, h)
         if len(rois) == 0:
             return np.zeros((0, 7), dtype=np.float32)
-        from .staged import detect_local_crops
+        from gldt_core.detect.staged import detect_local_crops
 
         return detect_local_crops(self, [self.crop(frame, roi) for roi in rois], rois, w, h)
 
@@ -380,10 +413,13 @@ def shipped_model_path(kind: str) -> Path:
     """Path of a shipped model: ``global``, ``global_nostff``, ``local``, ``global_balanced``, ``local_balanced``
     or ``global_nostff_balanced``."""
     names = {
-        "global": DEFAULT_GLOBAL_MODEL, "local": DEFAULT_LOCAL_MODEL, "global_nostff": MODELS_DIR / "global_nostff.onnx",
-        # Opt-in pair trained with half of the draws synthetic (configs/pipeline_balanced_models.yaml),
+        "global": DEFAULT_GLOBAL_MODEL,
+        "local": DEFAULT_LOCAL_MODEL,
+        "global_nostff": MODELS_DIR / "global_nostff.onnx",
+        # Opt-in pair trained with half of the draws synthetic (configs/run/balanced_models.yaml),
         # and the balanced AM-YOLO's twin without STFF (the STFF ablation on that data mix).
-        "global_balanced": MODELS_DIR / "global_amyolo_balanced.onnx", "local_balanced": MODELS_DIR / "local_p2_balanced.onnx",
+        "global_balanced": MODELS_DIR / "global_amyolo_balanced.onnx",
+        "local_balanced": MODELS_DIR / "local_p2_balanced.onnx",
         "global_nostff_balanced": MODELS_DIR / "global_nostff_balanced.onnx",
     }
     if kind not in names:

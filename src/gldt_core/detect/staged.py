@@ -9,16 +9,17 @@ nodes, and the offline wrappers call these same functions, so both give identica
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
-from .postprocess import Letterbox, decode_output, ensure_bgr, letterbox, to_blob, unletterbox
+from gldt_core.detect.postprocess import Letterbox, decode_output, ensure_bgr, letterbox, to_blob, unletterbox
 
 
 def _drop_degenerate(detections: np.ndarray) -> np.ndarray:
-    from .runtime import _drop_degenerate as drop
+    from gldt_core.detect.runtime import _drop_degenerate as drop
 
     return drop(detections)
 
@@ -76,7 +77,11 @@ def detect_global_streamed(
     else:
         (output,) = detector.session.run(None, {detector.input_names[0]: to_blob([current_input])})
     detections = decode_output(
-        output[0], detector.score_threshold, detector.iou_threshold, detector.max_detections, box_scale=(input_w, input_h),
+        output[0],
+        detector.score_threshold,
+        detector.iou_threshold,
+        detector.max_detections,
+        box_scale=(input_w, input_h),
         channels=detector.class_channels,
     )
     detections = _drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
@@ -111,7 +116,11 @@ def detect_local_crops(
     for index, (out, mapping, roi) in enumerate(zip(output, mappings, rois)):
         side = detector.input_side
         detections = decode_output(
-            out, detector.score_threshold, detector.iou_threshold, detector.max_detections_per_roi, box_scale=(side, side),
+            out,
+            detector.score_threshold,
+            detector.iou_threshold,
+            detector.max_detections_per_roi,
+            box_scale=(side, side),
             channels=detector.class_channels,
         )
         if not len(detections):

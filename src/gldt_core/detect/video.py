@@ -8,12 +8,12 @@ overlapping ``roi x roi`` tiles (one batch per frame) and merges tile seams with
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Callable, Iterator
 
 import numpy as np
 
-from .postprocess import nms
+from gldt_core.detect.postprocess import nms
 
 
 def iter_video_frames(path: Path | str) -> Iterator[np.ndarray]:

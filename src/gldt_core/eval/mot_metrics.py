@@ -29,8 +29,8 @@ percentages). Counts (IDSW, FP, FN, Frag, ...) are integers.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Iterable, Mapping
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -43,10 +43,36 @@ DEFAULT_DISTRACTOR_CLASSES = (2, 3, 4)
 
 #: Keys of the dict returned by :func:`evaluate_sequence` and :func:`evaluate_many`.
 METRIC_KEYS = (
-    "HOTA", "DetA", "AssA", "DetRe", "DetPr", "AssRe", "AssPr", "LocA",
-    "MOTA", "MOTP", "MODA", "IDF1", "IDP", "IDR",
-    "IDSW", "FP", "FN", "TP", "Frag", "MT", "PT", "ML",
-    "IDTP", "IDFP", "IDFN", "GT_Dets", "GT_IDs", "Pred_Dets", "Pred_IDs", "Frames",
+    "HOTA",
+    "DetA",
+    "AssA",
+    "DetRe",
+    "DetPr",
+    "AssRe",
+    "AssPr",
+    "LocA",
+    "MOTA",
+    "MOTP",
+    "MODA",
+    "IDF1",
+    "IDP",
+    "IDR",
+    "IDSW",
+    "FP",
+    "FN",
+    "TP",
+    "Frag",
+    "MT",
+    "PT",
+    "ML",
+    "IDTP",
+    "IDFP",
+    "IDFN",
+    "GT_Dets",
+    "GT_IDs",
+    "Pred_Dets",
+    "Pred_IDs",
+    "Frames",
 )
 
 
@@ -122,7 +148,7 @@ def _group_by_frame(table: np.ndarray, num_frames: int) -> list[np.ndarray]:
     table = table[order]
     frames = table[:, 0].astype(np.int64)
     starts = np.searchsorted(frames, np.arange(1, num_frames + 2))
-    return [table[starts[f]:starts[f + 1]] for f in range(num_frames)]
+    return [table[starts[f] : starts[f + 1]] for f in range(num_frames)]
 
 
 def _preprocess(
@@ -203,8 +229,15 @@ def _hota(data: _Frames) -> dict[str, np.ndarray]:
     fn = np.zeros(n_alpha)
     fp = np.zeros(n_alpha)
     loc = np.zeros(n_alpha)
-    out = {"tp": tp, "fn": fn, "fp": fp, "loc": loc,
-           "ass_a": np.zeros(n_alpha), "ass_re": np.zeros(n_alpha), "ass_pr": np.zeros(n_alpha)}
+    out = {
+        "tp": tp,
+        "fn": fn,
+        "fp": fp,
+        "loc": loc,
+        "ass_a": np.zeros(n_alpha),
+        "ass_re": np.zeros(n_alpha),
+        "ass_pr": np.zeros(n_alpha),
+    }
     if data.num_pred_dets == 0:
         fn[:] = data.num_gt_dets
         loc[:] = 1.0
@@ -351,18 +384,35 @@ def sequence_counts(
     data, frames = _preprocess(gt_rows, pred_rows, num_frames, target_classes, distractor_classes)
     hota = _hota(data)
     return SequenceCounts(
-        hota_tp=hota["tp"], hota_fn=hota["fn"], hota_fp=hota["fp"],
-        ass_a=hota["ass_a"], ass_re=hota["ass_re"], ass_pr=hota["ass_pr"], loc_a=hota["loc"],
+        hota_tp=hota["tp"],
+        hota_fn=hota["fn"],
+        hota_fp=hota["fp"],
+        ass_a=hota["ass_a"],
+        ass_re=hota["ass_re"],
+        ass_pr=hota["ass_pr"],
+        loc_a=hota["loc"],
         clear=_clear(data, frames, threshold),
         identity=_identity(data, threshold),
-        extra={"GT_Dets": data.num_gt_dets, "GT_IDs": data.num_gt_ids,
-               "Pred_Dets": data.num_pred_dets, "Pred_IDs": data.num_pred_ids, "Frames": frames},
+        extra={
+            "GT_Dets": data.num_gt_dets,
+            "GT_IDs": data.num_gt_ids,
+            "Pred_Dets": data.num_pred_dets,
+            "Pred_IDs": data.num_pred_ids,
+            "Frames": frames,
+        },
     )
 
 
 def _final(
-    tp: np.ndarray, fn: np.ndarray, fp: np.ndarray, ass_a: np.ndarray, ass_re: np.ndarray,
-    ass_pr: np.ndarray, loc_a: np.ndarray, clear: Mapping[str, float], identity: Mapping[str, float],
+    tp: np.ndarray,
+    fn: np.ndarray,
+    fp: np.ndarray,
+    ass_a: np.ndarray,
+    ass_re: np.ndarray,
+    ass_pr: np.ndarray,
+    loc_a: np.ndarray,
+    clear: Mapping[str, float],
+    identity: Mapping[str, float],
     extra: Mapping[str, int],
 ) -> dict[str, float]:
     det_re = tp / np.maximum(1, tp + fn)
@@ -373,18 +423,31 @@ def _final(
     denom = max(1.0, c_tp + c_fn)
     idtp, idfn, idfp = identity["IDTP"], identity["IDFN"], identity["IDFP"]
     out = {
-        "HOTA": float(np.mean(hota)), "DetA": float(np.mean(det_a)), "AssA": float(np.mean(ass_a)),
-        "DetRe": float(np.mean(det_re)), "DetPr": float(np.mean(det_pr)),
-        "AssRe": float(np.mean(ass_re)), "AssPr": float(np.mean(ass_pr)), "LocA": float(np.mean(loc_a)),
+        "HOTA": float(np.mean(hota)),
+        "DetA": float(np.mean(det_a)),
+        "AssA": float(np.mean(ass_a)),
+        "DetRe": float(np.mean(det_re)),
+        "DetPr": float(np.mean(det_pr)),
+        "AssRe": float(np.mean(ass_re)),
+        "AssPr": float(np.mean(ass_pr)),
+        "LocA": float(np.mean(loc_a)),
         "MOTA": float((c_tp - c_fp - idsw) / denom),
         "MOTP": float(clear["MOTP_sum"] / max(1.0, c_tp)),
         "MODA": float((c_tp - c_fp) / denom),
         "IDF1": float(idtp / max(1.0, idtp + 0.5 * idfp + 0.5 * idfn)),
         "IDP": float(idtp / max(1.0, idtp + idfp)),
         "IDR": float(idtp / max(1.0, idtp + idfn)),
-        "IDSW": int(idsw), "FP": int(c_fp), "FN": int(c_fn), "TP": int(c_tp), "Frag": int(clear["Frag"]),
-        "MT": int(clear["MT"]), "PT": int(clear["PT"]), "ML": int(clear["ML"]),
-        "IDTP": int(idtp), "IDFP": int(idfp), "IDFN": int(idfn),
+        "IDSW": int(idsw),
+        "FP": int(c_fp),
+        "FN": int(c_fn),
+        "TP": int(c_tp),
+        "Frag": int(clear["Frag"]),
+        "MT": int(clear["MT"]),
+        "PT": int(clear["PT"]),
+        "ML": int(clear["ML"]),
+        "IDTP": int(idtp),
+        "IDFP": int(idfp),
+        "IDFN": int(idfn),
     }
     out.update({k: int(v) for k, v in extra.items()})
     return out
@@ -396,8 +459,18 @@ def summarize(counts: SequenceCounts) -> dict[str, float]:
     A sequence without any ground truth but with predictions gets MOTA = MODA = 0 (not -FP), as
     TrackEval reports it per sequence; combined results still count those false positives.
     """
-    out = _final(counts.hota_tp, counts.hota_fn, counts.hota_fp, counts.ass_a, counts.ass_re,
-                 counts.ass_pr, counts.loc_a, counts.clear, counts.identity, counts.extra)
+    out = _final(
+        counts.hota_tp,
+        counts.hota_fn,
+        counts.hota_fp,
+        counts.ass_a,
+        counts.ass_re,
+        counts.ass_pr,
+        counts.loc_a,
+        counts.clear,
+        counts.identity,
+        counts.extra,
+    )
     if counts.extra["GT_Dets"] == 0:
         out["MOTA"] = 0.0
         out["MODA"] = 0.0
@@ -423,8 +496,7 @@ def combine(all_counts: Iterable[SequenceCounts]) -> dict[str, float]:
     clear = {k: sum(c.clear[k] for c in items) for k in clear_keys}
     identity = {k: sum(c.identity[k] for c in items) for k in ("IDTP", "IDFN", "IDFP")}
     extra = {k: sum(c.extra[k] for c in items) for k in ("GT_Dets", "GT_IDs", "Pred_Dets", "Pred_IDs", "Frames")}
-    return _final(tp, fn, fp, weighted("ass_a"), weighted("ass_re"), weighted("ass_pr"), loc_a,
-                  clear, identity, extra)
+    return _final(tp, fn, fp, weighted("ass_a"), weighted("ass_re"), weighted("ass_pr"), loc_a, clear, identity, extra)
 
 
 def evaluate_sequence(
@@ -441,9 +513,16 @@ def evaluate_sequence(
     ``num_frames`` defaults to the last frame present in either input (it only changes nothing but
     the ``Frames`` count, since empty frames add no error). Ratios are fractions in [0, 1].
     """
-    return summarize(sequence_counts(gt_rows, pred_rows, num_frames=num_frames,
-                                     target_classes=target_classes,
-                                     distractor_classes=distractor_classes, threshold=threshold))
+    return summarize(
+        sequence_counts(
+            gt_rows,
+            pred_rows,
+            num_frames=num_frames,
+            target_classes=target_classes,
+            distractor_classes=distractor_classes,
+            threshold=threshold,
+        )
+    )
 
 
 def evaluate_many(
@@ -462,8 +541,9 @@ def evaluate_many(
     counts = {}
     for name, (gt, pred) in sequences.items():
         try:
-            counts[name] = sequence_counts(gt, pred, target_classes=target_classes,
-                                           distractor_classes=distractor_classes, threshold=threshold)
+            counts[name] = sequence_counts(
+                gt, pred, target_classes=target_classes, distractor_classes=distractor_classes, threshold=threshold
+            )
         except ValueError as error:
             raise ValueError(f"sequence {name}: {error}") from None
     return {

@@ -71,8 +71,8 @@ def detections_from_gt(
     frame_col = gt[:, 0].astype(int)
     starts = np.searchsorted(frame_col, np.arange(1, num_frames + 2))
     for f in range(1, num_frames + 1):
-        block = gt[starts[f - 1]:starts[f]]
-        target = is_target[starts[f - 1]:starts[f]]
+        block = gt[starts[f - 1] : starts[f]]
+        target = is_target[starts[f - 1] : starts[f]]
         for row, tgt in zip(block, target):
             key = (int(row[1]), int(tgt))
             if not tgt:

@@ -1,1 +1,7 @@
-"""File formats GL-DT reads and writes (MOTChallenge text, rosbag2 MCAP, ...)."""
+"""Everything GL-DT reads and writes.
+
+Frame sources (:func:`gldt_core.io.sources.open_source`: videos, MOTChallenge folders, rosbag2
+MCAP bags, ``synth:`` scenes, all yielding :class:`gldt_core.io.frame.Frame`), image payload
+decoding (:mod:`.imaging`), MOTChallenge text (:mod:`.mot`), and rosbag2 MCAP bags and graph
+recordings (:mod:`.bag`, :mod:`.recording`).
+"""

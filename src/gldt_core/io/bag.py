@@ -23,13 +23,14 @@ import shutil
 import struct
 import tempfile
 import zlib
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Iterator
+from typing import Any
 
 import numpy as np
 
-from gldt_core.data.frame import Frame, FrameSource, empty_ground_truth
+from gldt_core.io.frame import Frame, FrameSource, empty_ground_truth
 
 IMAGE_TOPIC = "/camera/image_raw"
 COMPRESSED_TOPIC = "/camera/image_raw/compressed"
@@ -77,13 +78,19 @@ def _camera_info(store: Any, header: Any, size: tuple[int, int], k: np.ndarray) 
     width, height = size
     projection = np.zeros((3, 4))
     projection[:, :3] = k
-    roi = store.types["sensor_msgs/msg/RegionOfInterest"](
-        x_offset=0, y_offset=0, height=0, width=0, do_rectify=False
-    )
+    roi = store.types["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     return store.types[CAMERA_INFO_TYPE](
-        header=header, height=height, width=width, distortion_model="plumb_bob",
-        d=np.zeros(5), k=np.asarray(k, float).reshape(9), r=np.eye(3).reshape(9),
-        p=projection.reshape(12), binning_x=0, binning_y=0, roi=roi,
+        header=header,
+        height=height,
+        width=width,
+        distortion_model="plumb_bob",
+        d=np.zeros(5),
+        k=np.asarray(k, float).reshape(9),
+        r=np.eye(3).reshape(9),
+        p=projection.reshape(12),
+        binning_x=0,
+        binning_y=0,
+        roi=roi,
     )
 
 
@@ -96,9 +103,13 @@ def _ground_truth(store: Any, header: Any, frame: Frame) -> Any:
             raise ValueError(f"frame {frame.index}: ground-truth id {track_id} is not a uint32")
         objects.append(
             make_object(
-                id=int(track_id), class_id=int(max(class_id, 0)) if class_id >= 0 else 1,
-                center_x=float(x + w / 2), center_y=float(y + h / 2), width=float(w),
-                height=float(h), visibility=float(visibility if visibility >= 0 else 1.0),
+                id=int(track_id),
+                class_id=int(max(class_id, 0)) if class_id >= 0 else 1,
+                center_x=float(x + w / 2),
+                center_y=float(y + h / 2),
+                width=float(w),
+                height=float(h),
+                visibility=float(visibility if visibility >= 0 else 1.0),
             )
         )
     return store.types[GROUND_TRUTH_TYPE](header=header, frame_index=int(frame.index), objects=objects)
@@ -166,14 +177,21 @@ def write_bag(
                     message = store.types[COMPRESSED_TYPE](header=header, format="jpeg", data=encoded.reshape(-1))
                 else:
                     message = store.types[IMAGE_TYPE](
-                        header=header, height=height, width=width, encoding="bgr8", is_bigendian=0,
-                        step=width * 3, data=np.ascontiguousarray(image).reshape(-1),
+                        header=header,
+                        height=height,
+                        width=width,
+                        encoding="bgr8",
+                        is_bigendian=0,
+                        step=width * 3,
+                        data=np.ascontiguousarray(image).reshape(-1),
                     )
                 writer.write(image_conn, timestamp, store.serialize_cdr(message, image_type))
-                writer.write(info_conn, timestamp,
-                             store.serialize_cdr(_camera_info(store, header, size, k), CAMERA_INFO_TYPE))
-                writer.write(gt_conn, timestamp,
-                             store.serialize_cdr(_ground_truth(store, header, frame), GROUND_TRUTH_TYPE))
+                writer.write(
+                    info_conn, timestamp, store.serialize_cdr(_camera_info(store, header, size, k), CAMERA_INFO_TYPE)
+                )
+                writer.write(
+                    gt_conn, timestamp, store.serialize_cdr(_ground_truth(store, header, frame), GROUND_TRUTH_TYPE)
+                )
                 count += 1
                 rows += len(frame.ground_truth)
         if count == 0:
@@ -245,7 +263,7 @@ class _Fields:
         if size < 0 or self.position + size > len(self.body):
             raise ValueError(f"{self.what} record is shorter than its fields")
         start, self.position = self.position, self.position + size
-        return self.body[start:self.position]
+        return self.body[start : self.position]
 
     def integer(self, fmt: str) -> int:
         value: int = struct.unpack("<" + fmt, self.take(struct.calcsize(fmt)))[0]
@@ -299,8 +317,9 @@ class _McapWalker:
                     raise self.damage(offset, "file ends before the data section does (truncated)")
                 opcode, length = struct.unpack("<BQ", head)
                 if offset + 9 + length > size:
-                    raise self.damage(offset, f"record of {length} bytes runs past the end of the file "
-                                              "(truncated or corrupt)")
+                    raise self.damage(
+                        offset, f"record of {length} bytes runs past the end of the file (truncated or corrupt)"
+                    )
                 body = stream.read(length)
                 if opcode in (_OP_DATA_END, _OP_FOOTER):
                     return
@@ -324,8 +343,9 @@ class _McapWalker:
         # uncompressed chunks) so that "byte N" points at the damage.
         base = offset + 9 + fields.position
         if records_length != len(body) - fields.position:
-            raise ValueError(f"chunk says its records are {records_length} bytes, it holds "
-                             f"{len(body) - fields.position}")
+            raise ValueError(
+                f"chunk says its records are {records_length} bytes, it holds {len(body) - fields.position}"
+            )
         try:
             records = _decompress(compression, fields.take(records_length), uncompressed_size)
         except ValueError:
@@ -342,23 +362,30 @@ class _McapWalker:
                 raise self.damage(base + position, "chunk ends inside a record header")
             opcode, length = struct.unpack_from("<BQ", records, position)
             if opcode not in (_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE):
-                raise self.damage(base + position, f"chunk holds a record of opcode 0x{opcode:02x}, "
-                                                   "not a schema, channel or message (corrupt framing)")
+                raise self.damage(
+                    base + position,
+                    f"chunk holds a record of opcode 0x{opcode:02x}, "
+                    "not a schema, channel or message (corrupt framing)",
+                )
             if position + 9 + length > len(records):
-                raise self.damage(base + position, f"chunk record of {length} bytes runs past the chunk end "
-                                                   "(corrupt framing)")
+                raise self.damage(
+                    base + position, f"chunk record of {length} bytes runs past the chunk end (corrupt framing)"
+                )
             body_start = position + 9
             try:
-                message = self._record(opcode, records[body_start:body_start + length], base + position,
-                                       chunk_times=(start_time, end_time))
+                message = self._record(
+                    opcode,
+                    records[body_start : body_start + length],
+                    base + position,
+                    chunk_times=(start_time, end_time),
+                )
             except ValueError as error:
                 raise self.damage(base + position, str(error)) from None
             if message is not None:
                 yield message
             position = body_start + length
 
-    def _record(self, opcode: int, body: bytes, offset: int,
-                chunk_times: tuple[int, int] | None) -> _RawMessage | None:
+    def _record(self, opcode: int, body: bytes, offset: int, chunk_times: tuple[int, int] | None) -> _RawMessage | None:
         if opcode == _OP_SCHEMA:
             fields = _Fields(body, "schema")
             schema_id, name = fields.integer("H"), fields.string()
@@ -378,9 +405,11 @@ class _McapWalker:
             if channel is None:
                 raise ValueError(f"message on unknown channel {channel_id} (corrupt record)")
             if chunk_times is not None and chunk_times[1] and not chunk_times[0] <= log_time <= chunk_times[1]:
-                raise ValueError(f"message time {log_time} ns lies outside its chunk's "
-                                 f"{chunk_times[0]}..{chunk_times[1]} ns (corrupt record)")
-            return _RawMessage(self.path, offset, channel, log_time, body[_MESSAGE_HEAD.size:])
+                raise ValueError(
+                    f"message time {log_time} ns lies outside its chunk's "
+                    f"{chunk_times[0]}..{chunk_times[1]} ns (corrupt record)"
+                )
+            return _RawMessage(self.path, offset, channel, log_time, body[_MESSAGE_HEAD.size :])
         return None  # indexes, metadata, attachments: not needed to read the frames
 
 
@@ -390,20 +419,39 @@ def _seconds(stamp: Any) -> float:
 
 def _decode_image(message: Any, msgtype: str) -> np.ndarray:
     """BGR frame of an Image/CompressedImage; :class:`ImageDecodeError` (a ValueError) if impossible."""
-    from gldt_core.imaging import decode_compressed_image, decode_raw_image
+    from gldt_core.io.imaging import decode_compressed_image, decode_raw_image
 
     if msgtype == COMPRESSED_TYPE:
         return decode_compressed_image(message.data, message.format)
-    return decode_raw_image(message.data, int(message.width), int(message.height), message.encoding,
-                            step=int(message.step), is_bigendian=bool(message.is_bigendian))
+    return decode_raw_image(
+        message.data,
+        int(message.width),
+        int(message.height),
+        message.encoding,
+        step=int(message.step),
+        is_bigendian=bool(message.is_bigendian),
+    )
 
 
 def _gt_rows(message: Any) -> np.ndarray:
     if not message.objects:
         return empty_ground_truth()
     return np.array(
-        [[message.frame_index + 1, o.id, o.center_x - o.width / 2, o.center_y - o.height / 2,
-          o.width, o.height, 1, o.class_id, round(float(o.visibility), 6), -1] for o in message.objects],
+        [
+            [
+                message.frame_index + 1,
+                o.id,
+                o.center_x - o.width / 2,
+                o.center_y - o.height / 2,
+                o.width,
+                o.height,
+                1,
+                o.class_id,
+                round(float(o.visibility), 6),
+                -1,
+            ]
+            for o in message.objects
+        ],
         dtype=np.float64,
     )
 
@@ -475,13 +523,14 @@ class BagSource(FrameSource):
     def _deserialize(self, raw: _RawMessage) -> Any:
         """The message, or ValueError naming file, topic and type when its bytes do not decode."""
         if raw.channel.encoding != "cdr":
-            raise ValueError(f"{raw.path}: {raw.channel.topic} uses message encoding "
-                             f"{raw.channel.encoding!r}, not cdr")
+            raise ValueError(f"{raw.path}: {raw.channel.topic} uses message encoding {raw.channel.encoding!r}, not cdr")
         try:
             return self._store.deserialize_cdr(raw.data, raw.channel.msgtype)
         except Exception as error:  # noqa: BLE001 - rosbags raises several types on bad bytes
-            raise ValueError(f"{raw.path}: {raw.channel.topic} message at byte {raw.offset} is not a "
-                             f"valid {raw.channel.msgtype} ({type(error).__name__}: {error})") from None
+            raise ValueError(
+                f"{raw.path}: {raw.channel.topic} message at byte {raw.offset} is not a "
+                f"valid {raw.channel.msgtype} ({type(error).__name__}: {error})"
+            ) from None
 
     def _scan(self) -> None:
         """One pass over the bag: topics, frame count, first size, fps, camera matrix, ground truth."""
@@ -539,12 +588,15 @@ class BagSource(FrameSource):
         if self.image_topic is None:
             if self.damage is not None:
                 raise ValueError(f"{self._damage_text(0)}; no image frame before it") from None
-            raise ValueError(f"{self._label}: no {IMAGE_TOPIC} or {COMPRESSED_TOPIC} messages "
-                             f"(topics: {sorted(topics)})")
+            raise ValueError(
+                f"{self._label}: no {IMAGE_TOPIC} or {COMPRESSED_TOPIC} messages (topics: {sorted(topics)})"
+            )
         msgtype = image_types[self.image_topic]
         if msgtype not in _IMAGE_TYPES:
-            raise ValueError(f"{self._label}: topic {self.image_topic} carries {msgtype or 'an unknown type'}, "
-                             f"not {IMAGE_TYPE} or {COMPRESSED_TYPE}")
+            raise ValueError(
+                f"{self._label}: topic {self.image_topic} carries {msgtype or 'an unknown type'}, "
+                f"not {IMAGE_TYPE} or {COMPRESSED_TYPE}"
+            )
         self._image_stamps = image_stamps[self.image_topic]
         self._count = len(self._image_stamps)
         if self.damage is not None and self._gt_by_stamp:
@@ -568,7 +620,7 @@ class BagSource(FrameSource):
         return f"{self.damage.path}: damaged {where} (byte {self.damage.offset}): {self.damage.reason}"
 
     def _checked_k(self, k: Any) -> np.ndarray:
-        from gldt_core.geometry import PinholeIntrinsics
+        from gldt_core.camera import PinholeIntrinsics
 
         values = np.asarray(k, dtype=np.float64).reshape(-1)
         PinholeIntrinsics.from_k(values)  # raises ValueError naming camera_info.k

@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterable
 from pathlib import Path
-from typing import Iterable
 
 import numpy as np
 
@@ -54,9 +54,7 @@ def parse_mot_lines(lines: Iterable[str], source: str = "<lines>") -> np.ndarray
             raise MotFormatError(f"{source}:{line_number}: NaN or infinite value in {text!r}")
         frame = values[FRAME]
         if frame < 1 or frame != int(frame):
-            raise MotFormatError(
-                f"{source}:{line_number}: frame must be a 1-based integer, got {fields[0]!r}"
-            )
+            raise MotFormatError(f"{source}:{line_number}: frame must be a 1-based integer, got {fields[0]!r}")
         if values[W] < 0 or values[H] < 0:
             raise MotFormatError(f"{source}:{line_number}: negative box width/height in {text!r}")
         values.extend([-1.0] * (MOT_COLUMNS - len(values)))
@@ -80,10 +78,7 @@ def read_mot(path: str | os.PathLike[str]) -> np.ndarray:
 def format_mot_row(row: np.ndarray | list[float]) -> str:
     """Format one 10-column row; frame and id as integers, coordinates with 2 decimals."""
     frame, track_id, x, y, w, h, score, c7, c8, c9 = (float(v) for v in row)
-    return (
-        f"{int(frame)},{int(track_id)},{x:.2f},{y:.2f},{w:.2f},{h:.2f},"
-        f"{score:.4g},{c7:.4g},{c8:.4g},{c9:.4g}"
-    )
+    return f"{int(frame)},{int(track_id)},{x:.2f},{y:.2f},{w:.2f},{h:.2f},{score:.4g},{c7:.4g},{c8:.4g},{c9:.4g}"
 
 
 def write_mot(path: str | os.PathLike[str], rows: np.ndarray) -> None:

@@ -8,8 +8,9 @@ compare the graph's ``/gldt/tracks`` with an offline run.
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 

@@ -43,8 +43,7 @@ def gldt_message_definitions(msg_dir: Path | None = None) -> dict[str, str]:
     """Map ``gldt_msgs/msg/<Name>`` to the text of its ``.msg`` file."""
     msg_dir = msg_dir or find_msg_dir()
     definitions = {
-        f"{MSG_PACKAGE}/msg/{path.stem}": path.read_text(encoding="utf-8")
-        for path in sorted(msg_dir.glob("*.msg"))
+        f"{MSG_PACKAGE}/msg/{path.stem}": path.read_text(encoding="utf-8") for path in sorted(msg_dir.glob("*.msg"))
     }
     if not definitions:
         raise FileNotFoundError(f"no .msg files in {msg_dir}")

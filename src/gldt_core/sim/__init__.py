@@ -32,7 +32,7 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     """Import the heavier modules (cv2) only when their names are used."""
     if name == "scene_ground_truth":
-        from gldt_core.sim.geometry import scene_ground_truth
+        from gldt_core.sim.scene_geometry import scene_ground_truth
 
         return scene_ground_truth
     if name in ("SceneRenderer", "render_scene"):

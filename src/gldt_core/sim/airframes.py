@@ -57,8 +57,9 @@ def _disc(center: tuple[float, float, float], radius: float, thickness: float, n
 def _normalised(kind: str, parts: list[Part]) -> Airframe:
     points = np.concatenate([p.points for p in parts])
     span = max(np.ptp(points[:, 0]), np.ptp(points[:, 1]))
-    centre = np.array([points[:, 0].min() + np.ptp(points[:, 0]) / 2,
-                       points[:, 1].min() + np.ptp(points[:, 1]) / 2, 0.0])
+    centre = np.array(
+        [points[:, 0].min() + np.ptp(points[:, 0]) / 2, points[:, 1].min() + np.ptp(points[:, 1]) / 2, 0.0]
+    )
     return Airframe(
         kind,
         tuple(Part((p.points - centre) / span, p.shade, p.alpha, p.radius / span, p.neutral) for p in parts),
@@ -126,8 +127,7 @@ def bird_model(flap_phase: float) -> Airframe:
     ]
     for side in (-1, 1):
         wing = np.array(
-            [[0.02, side * 0.03, 0.01], [0.0, side * 0.25, 0.14 * lift],
-             [-0.07, side * 0.5, 0.32 * lift - 0.04]]
+            [[0.02, side * 0.03, 0.01], [0.0, side * 0.25, 0.14 * lift], [-0.07, side * 0.5, 0.32 * lift - 0.04]]
         )
         parts.append(Part(wing, 1.0, 1.0, 0.035))
     return Airframe("bird", tuple(parts))
@@ -141,6 +141,7 @@ def rotation_matrices(
     ``bank`` tilts the airframe in the image plane (multirotors leaning into their motion),
     ``elevation`` is how far the camera looks down on the target (negative: from below).
     """
+
     def rx(a: np.ndarray) -> np.ndarray:
         c, s = np.cos(a), np.sin(a)
         o, z = np.ones_like(a), np.zeros_like(a)

@@ -41,9 +41,7 @@ def cloud_field(spec: SceneSpec, style: SceneStyle) -> np.ndarray:
     return (alpha * fade[:, None]).astype(np.float32)
 
 
-def sample_cloud(
-    field: np.ndarray, canvas_wh: tuple[int, int], x: np.ndarray, y: np.ndarray
-) -> np.ndarray:
+def sample_cloud(field: np.ndarray, canvas_wh: tuple[int, int], x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Bilinear cloud opacity at canvas points (x, y), matching cv2's resize of ``field``."""
     low_h, low_w = field.shape
     gx = (np.asarray(x, np.float64) + 0.5) * (low_w / canvas_wh[0]) - 0.5
@@ -143,7 +141,7 @@ def ridge_profile(spec: SceneSpec, style: SceneStyle) -> tuple[np.ndarray, np.nd
     if style.terrain == "treeline":
         crowns = noise_1d(rng, canvas_w, canvas_w / (14.0 * scale), 3)
         hills = noise_1d(rng, canvas_w, 3.0, 2)
-        profile = 25 * scale * hills + 38 * scale * crowns ** 1.5
+        profile = 25 * scale * hills + 38 * scale * crowns**1.5
     elif style.terrain == "terrain":
         profile = 60 * scale * noise_1d(rng, canvas_w, 4.0, 4)
     elif style.terrain == "desert":
@@ -216,10 +214,12 @@ def _draw_ground(
         ground += (10.0 * (windows & (detail > 0.6))).astype(np.float32)[..., None]
     if style.terrain in ("treeline", "terrain", "desert", "urban"):
         # Fields in front of the horizon: horizontal streaks in a green, dry or sandy tone.
-        field_colours = {"treeline": [(55.0, 115.0, 75.0), (70.0, 120.0, 150.0)],
-                         "terrain": [(60.0, 120.0, 95.0), (75.0, 125.0, 140.0)],
-                         "desert": [(120.0, 160.0, 190.0), (105.0, 145.0, 175.0)],
-                         "urban": [(80.0, 100.0, 95.0), (85.0, 88.0, 92.0)]}[style.terrain]
+        field_colours = {
+            "treeline": [(55.0, 115.0, 75.0), (70.0, 120.0, 150.0)],
+            "terrain": [(60.0, 120.0, 95.0), (75.0, 125.0, 140.0)],
+            "desert": [(120.0, 160.0, 190.0), (105.0, 145.0, 175.0)],
+            "urban": [(80.0, 100.0, 95.0), (85.0, 88.0, 92.0)],
+        }[style.terrain]
         field_colour = field_colours[int(rng.integers(len(field_colours)))]
         streaks = cv2.resize(
             fractal_noise(rng, (max(2, band_h // 2), max(2, canvas_w // 24)), canvas_w / (200.0 * scale), 3, 0.6),
@@ -236,7 +236,5 @@ def _draw_ground(
     horizon_img[:] = np.array(style.horizon_color, np.float32)
     ground = cv2.blendLinear(ground, horizon_img, 1.0 - haze, haze)
     coverage = coverage.astype(np.float32)
-    image[top:] = cv2.blendLinear(
-        np.ascontiguousarray(band), ground.astype(np.float32), 1.0 - coverage, coverage
-    )
+    image[top:] = cv2.blendLinear(np.ascontiguousarray(band), ground.astype(np.float32), 1.0 - coverage, coverage)
     return image

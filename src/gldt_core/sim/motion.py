@@ -22,8 +22,15 @@ FIXED_WING_PATTERNS = ("pass", "loop", "turns", "dive", "reenter")
 #: Airframe colours (BGR). Seen against the sky a drone is mostly its shadowed underside, so
 #: even white airframes show up mid-grey; dark ones dominate, as in the real clips.
 DRONE_COLOURS = (
-    (28, 28, 30), (45, 42, 40), (60, 60, 62), (35, 38, 45), (80, 80, 85), (110, 110, 115),
-    (150, 152, 155), (40, 60, 150), (30, 35, 90),
+    (28, 28, 30),
+    (45, 42, 40),
+    (60, 60, 62),
+    (35, 38, 45),
+    (80, 80, 85),
+    (110, 110, 115),
+    (150, 152, 155),
+    (40, 60, 150),
+    (30, 35, 90),
 )
 
 

@@ -19,8 +19,9 @@ SPLIT_FRAMES = {"train": 300, "val": 300, "test": 450}
 REGIMES = (("ft", (4.0, 24.0)), ("motfly", (12.0, 80.0)), ("mixed", (6.0, 60.0)))
 
 
-def split(name: str, count: int | None = None, frames: int | None = None,
-          size: tuple[int, int] = (1920, 1080)) -> list[SceneSpec]:
+def split(
+    name: str, count: int | None = None, frames: int | None = None, size: tuple[int, int] = (1920, 1080)
+) -> list[SceneSpec]:
     """The scene specs of split ``name`` (``train``, ``val`` or ``test``).
 
     ``count`` and ``frames`` override the default number of scenes and frames per scene; the
@@ -40,9 +41,15 @@ def split(name: str, count: int | None = None, frames: int | None = None,
         targets = 1 + (index * 7 // 3) % 3
         seed = SEED_BASES[name] + index
         specs.append(
-            SceneSpec(seed=seed, frames=frames, size=size, targets=targets,
-                      target_size=_fit(target_size, size), jpeg_quality=70 + (index * 11) % 26,
-                      name=f"{name}-{index:04d}-{regime}")
+            SceneSpec(
+                seed=seed,
+                frames=frames,
+                size=size,
+                targets=targets,
+                target_size=_fit(target_size, size),
+                jpeg_quality=70 + (index * 11) % 26,
+                name=f"{name}-{index:04d}-{regime}",
+            )
         )
     return specs
 

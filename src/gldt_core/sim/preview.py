@@ -7,7 +7,7 @@ drawn drone and its box agree.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import cv2
 import numpy as np
@@ -31,8 +31,16 @@ def annotate_tile(image: np.ndarray, rows: np.ndarray, label: str = "") -> np.nd
         p1 = (int(x * scale) - 2, int(y * scale) - 2)
         p2 = (int((x + w) * scale) + 2, int((y + h) * scale) + 2)
         cv2.rectangle(tile, p1, p2, colour, 1)
-        cv2.putText(tile, f"{int(row[1])} v{row[8]:.2f}", (p1[0], max(p1[1] - 3, 8)),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.3, colour, 1, cv2.LINE_AA)
+        cv2.putText(
+            tile,
+            f"{int(row[1])} v{row[8]:.2f}",
+            (p1[0], max(p1[1] - 3, 8)),
+            cv2.FONT_HERSHEY_SIMPLEX,
+            0.3,
+            colour,
+            1,
+            cv2.LINE_AA,
+        )
         side = int(max(w, h) * 1.6) + 8
         cx, cy = x + w / 2, y + h / 2
         x0, y0 = int(cx - side / 2), int(cy - side / 2)

@@ -9,15 +9,16 @@ frame can be rendered on its own and the same spec always gives the same bytes.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Sequence
 from functools import lru_cache
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
 
 from gldt_core.sim.airframes import Airframe, bird_model, project
 from gldt_core.sim.background import render_canvas
-from gldt_core.sim.geometry import ObjectState, SceneGeometry, rows_from_states
+from gldt_core.sim.scene_geometry import ObjectState, SceneGeometry, rows_from_states
 from gldt_core.sim.spec import SceneSpec
 from gldt_core.sim.style import STREAM_FRAME, STREAM_STYLE, camera_matrix
 
@@ -86,9 +87,7 @@ class SceneRenderer:
     def exposure_gain(self, frame: int) -> float:
         """Auto-exposure: a slow wobble plus a few smooth steps (sun, pan towards bright sky)."""
         t = frame / self.spec.fps
-        gain = 1.0 + self.style.exposure_wobble * np.sin(
-            2 * np.pi * t / self._exposure_period + self._exposure_phase
-        )
+        gain = 1.0 + self.style.exposure_wobble * np.sin(2 * np.pi * t / self._exposure_period + self._exposure_phase)
         for when, change in self.style.exposure_steps:
             gain += change / (1.0 + np.exp(-(t - when) / 0.35))
         return float(gain)
@@ -139,8 +138,12 @@ class SceneRenderer:
     def _draw(self, image: np.ndarray, state: ObjectState) -> None:
         track = state.track
         span = float(track.span[state.frame])
-        model: Airframe = track.airframe if track.airframe is not None else bird_model(
-            float(track.flap_phase[state.frame])  # type: ignore[index]
+        model: Airframe = (
+            track.airframe
+            if track.airframe is not None
+            else bird_model(
+                float(track.flap_phase[state.frame])  # type: ignore[index]
+            )
         )
         velocity = self._screen_velocity(state)
         blur = float(np.hypot(*velocity)) * self.style.blur_exposure
@@ -273,7 +276,13 @@ def render_scene(
     ``gt`` is exactly :func:`gldt_core.sim.scene_ground_truth` for the same arguments; extra
     keyword arguments are :class:`SceneSpec` fields (``target_size``, ``birds``, ``jpeg_quality``).
     """
-    spec = SceneSpec(seed=seed, frames=frames, size=tuple(size), targets=targets, fps=fps,  # type: ignore[arg-type]
-                     **spec_fields)  # type: ignore[arg-type]
+    spec = SceneSpec(
+        seed=seed,
+        frames=frames,
+        size=tuple(size),
+        targets=targets,
+        fps=fps,  # type: ignore[arg-type]
+        **spec_fields,
+    )  # type: ignore[arg-type]
     renderer = SceneRenderer(spec)
     return SceneFrames(renderer), renderer.ground_truth()

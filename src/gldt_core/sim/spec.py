@@ -57,7 +57,7 @@ class SceneSpec:
     def height(self) -> int:
         return int(self.size[1])
 
-    def with_(self, **changes: object) -> "SceneSpec":
+    def with_(self, **changes: object) -> SceneSpec:
         """A copy with some fields changed (validated again)."""
         return replace(self, **changes)  # type: ignore[arg-type]
 
@@ -91,9 +91,7 @@ def validate_spec(spec: SceneSpec) -> None:
     if int(width) != width or int(height) != height:
         raise ValueError(f"size must be integer pixels, got {spec.size!r}")
     if width < MIN_FRAME_SIDE or height < MIN_FRAME_SIDE:
-        raise ValueError(
-            f"size {width}x{height} is too small: both sides must be >= {MIN_FRAME_SIDE} px"
-        )
+        raise ValueError(f"size {width}x{height} is too small: both sides must be >= {MIN_FRAME_SIDE} px")
     if width > 8192 or height > 8192:
         raise ValueError(f"size {width}x{height} is too large: both sides must be <= 8192 px")
     if int(spec.targets) != spec.targets or not 0 <= spec.targets <= 64:
@@ -104,13 +102,10 @@ def validate_spec(spec: SceneSpec) -> None:
         raise ValueError(f"target_size must be (min, max) px, got {spec.target_size!r}")
     low, high = spec.target_size  # type: ignore[misc]
     if not 2.0 <= low <= high:
-        raise ValueError(
-            f"target_size must be (min, max) with 2 <= min <= max px, got {spec.target_size!r}"
-        )
+        raise ValueError(f"target_size must be (min, max) with 2 <= min <= max px, got {spec.target_size!r}")
     if high > min(width, height) / 2:
         raise ValueError(
-            f"target_size max {high} px is bigger than half the frame ({width}x{height}); "
-            "targets must fit in the frame"
+            f"target_size max {high} px is bigger than half the frame ({width}x{height}); targets must fit in the frame"
         )
     if spec.birds is not None and not 0 <= spec.birds <= 64:
         raise ValueError(f"birds must be in 0..64 or None, got {spec.birds!r}")

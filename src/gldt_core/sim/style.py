@@ -77,9 +77,7 @@ def scene_style(spec: SceneSpec) -> SceneStyle:
     noise_sigma = float(rng.uniform(1.5, 6.0))
     exposure_wobble = float(rng.uniform(0.0, 0.06))
     n_steps = int(rng.integers(0, 3))
-    exposure_steps = tuple(
-        (float(rng.uniform(0.5, 12.0)), float(rng.uniform(-0.18, 0.18))) for _ in range(n_steps)
-    )
+    exposure_steps = tuple((float(rng.uniform(0.5, 12.0)), float(rng.uniform(-0.18, 0.18))) for _ in range(n_steps))
     blur_exposure = float(rng.uniform(0.2, 0.8))
     hfov_deg = float(rng.uniform(35.0, 75.0))
     birds = int(rng.choice([0, 0, 1, 2, 3])) if spec.birds is None else int(spec.birds)
@@ -109,6 +107,4 @@ def camera_matrix(size: tuple[int, int], hfov_deg: float) -> np.ndarray:
     """A pinhole ``K`` (3x3) for a camera of the given size and horizontal field of view."""
     width, height = size
     focal = (width / 2.0) / np.tan(np.radians(hfov_deg) / 2.0)
-    return np.array(
-        [[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]]
-    )
+    return np.array([[focal, 0.0, (width - 1) / 2.0], [0.0, focal, (height - 1) / 2.0], [0.0, 0.0, 1.0]])

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import cv2
 
-from gldt_core.data.mot_folder import write_seqinfo
 from gldt_core.io.mot import write_mot
+from gldt_core.io.mot_folder import write_seqinfo
 
 
 def write_mot_sequence(renderer: object, out: Path, *, jpeg_quality: int = 95, overwrite: bool = False) -> str:

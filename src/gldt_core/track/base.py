@@ -23,13 +23,13 @@ Time is the caller's timestamp in seconds; nothing counts frames except ``frames
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 import numpy as np
 
 from gldt_core.track.assignment import linear_sum_assignment
 from gldt_core.track.birth import LowScoreBirth
-from gldt_core.track.geometry import (
+from gldt_core.track.boxes import (
     SCALAR_IOU_PAIRS,
     iou_pairs_above,
     iou_row_pairs_above,
@@ -135,9 +135,7 @@ class MultiStageTracker:
         lost tracks within the association window; never changes any state."""
         rows = []
         for tr in self._tracks:
-            if tr.state in OUTPUT_STATES or (
-                tr.state is TrackState.LOST and t - tr.last_update_t <= self._window_s
-            ):
+            if tr.state in OUTPUT_STATES or (tr.state is TrackState.LOST and t - tr.last_update_t <= self._window_s):
                 rows.append([*tr.predicted_xyxy(float(t)), float(tr.track_id)])
         return np.asarray(rows, dtype=np.float64).reshape(-1, 5)
 
@@ -172,8 +170,9 @@ class MultiStageTracker:
         tentative = [tr for tr in self._tracks if tr.state is TrackState.TENTATIVE]
         updated: set[int] = set()
 
-        def apply(tracks: Sequence[Track], det_idx: np.ndarray, pairs: list[tuple[int, int]],
-                  new_state: TrackState | None) -> tuple[list[Track], np.ndarray]:
+        def apply(
+            tracks: Sequence[Track], det_idx: np.ndarray, pairs: list[tuple[int, int]], new_state: TrackState | None
+        ) -> tuple[list[Track], np.ndarray]:
             if not pairs:  # nothing matched: everything stays (the common case for stages 2-4)
                 return list(tracks), det_idx
             matched = [tracks[r] for r, _ in pairs]
@@ -218,17 +217,30 @@ class MultiStageTracker:
         for d in rest_high:
             if dets[d, 4] >= self._new_thresh:
                 state = TrackState.CONFIRMED if first_frame else TrackState.TENTATIVE
-                self._tracks.append(Track(self._next_id, dets[d, :4], dets[d, 4], t, state,
-                                          self._ref_fps, self._history_len, rel[d]))
+                self._tracks.append(
+                    Track(self._next_id, dets[d, :4], dets[d, 4], t, state, self._ref_fps, self._history_len, rel[d])
+                )
                 updated.add(id(self._tracks[-1]))
                 self._next_id += 1
 
         # Confirmed tracks from low-score detections seen at the same place K frames running.
         if self._low_birth is not None:
-            unclaimed = np.concatenate([rest_low, [d for d in rest_high if dets[d, 4] < self._new_thresh]]).astype(np.int64)
+            unclaimed = np.concatenate([rest_low, [d for d in rest_high if dets[d, 4] < self._new_thresh]]).astype(
+                np.int64
+            )
             for d in self._low_birth.update(dets, unclaimed):
-                self._tracks.append(Track(self._next_id, dets[d, :4], dets[d, 4], t, TrackState.CONFIRMED,
-                                          self._ref_fps, self._history_len, rel[d]))
+                self._tracks.append(
+                    Track(
+                        self._next_id,
+                        dets[d, :4],
+                        dets[d, 4],
+                        t,
+                        TrackState.CONFIRMED,
+                        self._ref_fps,
+                        self._history_len,
+                        rel[d],
+                    )
+                )
                 updated.add(id(self._tracks[-1]))
                 self._next_id += 1
 
@@ -246,8 +258,9 @@ class MultiStageTracker:
         shown = [tr for tr in self._tracks if tr.state in OUTPUT_STATES and id(tr) in updated]
         if not shown:
             return np.empty((0, 6))
-        return np.array([(*box, float(tr.track_id), tr.score) for box, tr in zip(box_rows(shown), shown)],
-                        dtype=np.float64)
+        return np.array(
+            [(*box, float(tr.track_id), tr.score) for box, tr in zip(box_rows(shown), shown)], dtype=np.float64
+        )
 
     # --- hooks ------------------------------------------------------------------------------
     def _pair_cost(
@@ -258,8 +271,14 @@ class MultiStageTracker:
         raise NotImplementedError
 
     def _recover(
-        self, lost: list[Track], dets: np.ndarray, rest_high: np.ndarray, rest_low: np.ndarray,
-        t: float, rel: list[tuple[float, float]], updated: set[int],
+        self,
+        lost: list[Track],
+        dets: np.ndarray,
+        rest_high: np.ndarray,
+        rest_low: np.ndarray,
+        t: float,
+        rel: list[tuple[float, float]],
+        updated: set[int],
     ) -> tuple[np.ndarray, np.ndarray]:
         """Stage 3; the default (ByteTrack) recovers nothing."""
         return rest_high, rest_low
@@ -273,8 +292,7 @@ class MultiStageTracker:
             return []
         if rois is None and len(dets) <= SMALL_REL_ROWS:  # the same operations on Python floats
             w, h = self._image_size
-            return [(((x1 + x2) * 0.5 - 0.0) / w, ((y1 + y2) * 0.5 - 0.0) / h)
-                    for x1, y1, x2, y2, _ in dets.tolist()]
+            return [(((x1 + x2) * 0.5 - 0.0) / w, ((y1 + y2) * 0.5 - 0.0) / h) for x1, y1, x2, y2, _ in dets.tolist()]
         cx = (dets[:, 0] + dets[:, 2]) * 0.5
         cy = (dets[:, 1] + dets[:, 3]) * 0.5
         if rois is None:  # the image: origin 0, scalar sizes (same values, fewer arrays)

@@ -71,7 +71,10 @@ class LowScoreBirth:
             previous = np.array([c.box for c in self.candidates])
             offset = _centre(previous)[:, None, :] - _centre(boxes)[None, :, :]
             distance = np.hypot(offset[..., 0], offset[..., 1])
-            gate = GATE_DIAGONALS * np.hypot(previous[:, 2] - previous[:, 0], previous[:, 3] - previous[:, 1]) + GATE_MIN_PX
+            gate = (
+                GATE_DIAGONALS * np.hypot(previous[:, 2] - previous[:, 0], previous[:, 3] - previous[:, 1])
+                + GATE_MIN_PX
+            )
             # Distances in units of each chain's gate, so one limit (1) serves every row.
             relative = distance / gate[:, None]
             for chain_index, column in assign(relative, relative <= 1.0, 1.0):

@@ -10,8 +10,8 @@ real elapsed time (see :mod:`.kalman`).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -45,10 +45,17 @@ class ByteTrack(MultiStageTracker):
     def __init__(self, config: ByteTrackConfig | None = None) -> None:
         self.config = config or ByteTrackConfig()
         c = self.config
-        super().__init__(t_high=c.track_thresh, t_low=c.low_thresh, new_track_thresh=c.new_track_thresh,
-                         jcma_window_s=c.track_buffer_s, memory_s=c.track_buffer_s, ref_fps=c.ref_fps,
-                         history_len=c.history_len, image_size=c.image_size,
-                         low_score_birth_frames=c.low_score_birth_frames)
+        super().__init__(
+            t_high=c.track_thresh,
+            t_low=c.low_thresh,
+            new_track_thresh=c.new_track_thresh,
+            jcma_window_s=c.track_buffer_s,
+            memory_s=c.track_buffer_s,
+            ref_fps=c.ref_fps,
+            history_len=c.history_len,
+            image_size=c.image_size,
+            low_score_birth_frames=c.low_score_birth_frames,
+        )
 
     def _pair_cost(
         self, stage: str, tracks: Sequence[Track], dets: np.ndarray, det_idx: np.ndarray, t: float

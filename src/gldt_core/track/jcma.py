@@ -31,12 +31,12 @@ Choices where the paper is loose, and why:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
-from gldt_core.track.geometry import iou_xyxy
+from gldt_core.track.boxes import iou_xyxy
 
 #: Pools of at most this many (track, detection) pairs, with at most SMALL_POOL_CONTEXT context
 #: objects, are costed on Python floats (:func:`jcma_cost_rows`): at a handful of targets the
@@ -92,8 +92,14 @@ def jcma_cost(
         return np.zeros((n_t, n_d)), np.zeros((n_t, n_d), dtype=bool)
     if is_small_pool(n_t, n_d, len(context_c)):
         rows = np.column_stack([t_boxes, motion.last_obs_c, motion.elapsed_ref, motion.v_avg, motion.v_last])
-        return jcma_cost_rows(rows.tolist(), motion.has_motion.tolist(), np.asarray(dets_xyxy).tolist(),
-                              np.asarray(context_c).tolist(), context_index.tolist(), weights)
+        return jcma_cost_rows(
+            rows.tolist(),
+            motion.has_motion.tolist(),
+            np.asarray(dets_xyxy).tolist(),
+            np.asarray(context_c).tolist(),
+            context_index.tolist(),
+            weights,
+        )
     c_iou = 1.0 - iou_xyxy(t_boxes, dets_xyxy)
 
     ci = (t_boxes[:, :2] + t_boxes[:, 2:4]) * 0.5
@@ -145,9 +151,7 @@ def _motion_cost(motion: TrackMotion, cj: np.ndarray, weights: JcmaWeights) -> n
     return c_motion
 
 
-def relational_cost(
-    ci: np.ndarray, cj: np.ndarray, context_c: np.ndarray, context_index: np.ndarray
-) -> np.ndarray:
+def relational_cost(ci: np.ndarray, cj: np.ndarray, context_c: np.ndarray, context_index: np.ndarray) -> np.ndarray:
     """Eq. 15 for all pairs: ``1 - mean_k cos(c_k - c_i, c_k - c_j)`` over context objects k != i.
 
     The cosine sum is one matrix product of unit vectors, ``(T, 2K) @ (2K, D)``, so the cost stays
@@ -235,8 +239,11 @@ def jcma_cost_rows(
     if any_motion:
         v_avg = [(row[7], row[8]) for row in track_rows]
         v_exp = [((jx - row[4]) / row[6], (jy - row[5]) / row[6]) for row in track_rows for jx, jy in cj]
-        accel = [((vx - row[9]) / row[6], (vy - row[10]) / row[6])
-                 for i, row in enumerate(track_rows) for vx, vy in v_exp[i * n_d:(i + 1) * n_d]]
+        accel = [
+            ((vx - row[9]) / row[6], (vy - row[10]) / row[6])
+            for i, row in enumerate(track_rows)
+            for vx, vy in v_exp[i * n_d : (i + 1) * n_d]
+        ]
         xs += [v[0] for v in v_exp] + [a[0] for a in accel] + [v[0] for v in v_avg]
         ys += [v[1] for v in v_exp] + [a[1] for a in accel] + [v[1] for v in v_avg]
     if n_k:
@@ -246,9 +253,9 @@ def jcma_cost_rows(
     n_p = n_t * n_d
     dist = norms[:n_p]
     if any_motion:
-        speed_exp = norms[n_p:2 * n_p]
-        accel_norm = norms[2 * n_p:3 * n_p]
-        speed_avg = norms[3 * n_p:3 * n_p + n_t]
+        speed_exp = norms[n_p : 2 * n_p]
+        accel_norm = norms[2 * n_p : 3 * n_p]
+        speed_avg = norms[3 * n_p : 3 * n_p + n_t]
 
     # Eq. 15's unit vectors: rows a_i (own context object zeroed, as the vectorised path's mask
     # does) and columns b_j, so C_rel is a running sum over k of a_ik . b_kj.
@@ -264,16 +271,17 @@ def jcma_cost_rows(
             else:
                 units += (0.0, 0.0)
         for i, own in enumerate(context_index):
-            row = units[2 * i * n_k:2 * (i + 1) * n_k]
+            row = units[2 * i * n_k : 2 * (i + 1) * n_k]
             inside = 0 <= own < n_k
             if inside:
                 row[2 * own] *= 0.0
                 row[2 * own + 1] *= 0.0
             rel_rows.append(row)
             counts.append(n_k - 1 if inside else n_k)
-        b_units = units[2 * n_t * n_k:]
-        rel_cols = [[v for k in range(n_k) for v in b_units[2 * (k * n_d + j):2 * (k * n_d + j) + 2]]
-                    for j in range(n_d)]
+        b_units = units[2 * n_t * n_k :]
+        rel_cols = [
+            [v for k in range(n_k) for v in b_units[2 * (k * n_d + j) : 2 * (k * n_d + j) + 2]] for j in range(n_d)
+        ]
 
     pi, two_pi, half_pi = math.pi, 2.0 * math.pi, math.pi / 2.0
     w_iou, w_dist, w_motion, w_rel = w.w_iou, w.w_dist, w.w_motion, w.w_rel

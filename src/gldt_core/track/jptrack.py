@@ -31,8 +31,8 @@ Table I value is a config field with the paper's default. What the paper leaves 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -50,7 +50,7 @@ def settled_history(track: Track) -> np.ndarray:
     the newest sample is kept). The history deque may already have dropped the oldest rows."""
     history = track.history_array()
     unsettled = max(0, PMR_SETTLING_HITS - (track.hits - len(history)))
-    return history[min(unsettled, len(history) - 1):]
+    return history[min(unsettled, len(history) - 1) :]
 
 
 @dataclass(frozen=True)
@@ -98,8 +98,15 @@ class JPTrackConfig:
     low_score_birth_frames: int = 0
 
     def weights(self) -> JcmaWeights:
-        return JcmaWeights(w_iou=self.w1, w_dist=self.w2, w_motion=self.w3, w_rel=self.w4,
-                           b_speed=self.beta1, b_direction=self.beta2, b_acceleration=self.beta3)
+        return JcmaWeights(
+            w_iou=self.w1,
+            w_dist=self.w2,
+            w_motion=self.w3,
+            w_rel=self.w4,
+            b_speed=self.beta1,
+            b_direction=self.beta2,
+            b_acceleration=self.beta3,
+        )
 
 
 #: Up to this many (lost track, candidate) pairs the PMR pre-gate runs on Python floats.
@@ -114,10 +121,17 @@ class JPTrack(MultiStageTracker):
         c = self.config
         self._weights = c.weights()
         memory = c.lost_window_s + (c.pmr_memory_s if c.use_pmr else 0.0)
-        super().__init__(t_high=c.t_h, t_low=c.t_l, new_track_thresh=c.new_track_thresh,
-                         jcma_window_s=c.lost_window_s, memory_s=memory, ref_fps=c.ref_fps,
-                         history_len=c.history_len, image_size=c.image_size,
-                         low_score_birth_frames=c.low_score_birth_frames)
+        super().__init__(
+            t_high=c.t_h,
+            t_low=c.t_l,
+            new_track_thresh=c.new_track_thresh,
+            jcma_window_s=c.lost_window_s,
+            memory_s=memory,
+            ref_fps=c.ref_fps,
+            history_len=c.history_len,
+            image_size=c.image_size,
+            low_score_birth_frames=c.low_score_birth_frames,
+        )
         #: Number of PMR mixtures fitted since construction (the bench reports it).
         self.pmr_fits = 0
         if c.pmr_backend not in ("numpy", "sklearn"):
@@ -138,17 +152,25 @@ class JPTrack(MultiStageTracker):
         c = self.config
         if not c.use_jcma:
             thresh = {self.STAGE_HIGH: c.iou_match_thresh, self.STAGE_LOW: c.iou_second_thresh}.get(
-                stage, c.iou_unconfirmed_thresh)
+                stage, c.iou_unconfirmed_thresh
+            )
             return iou_pair_cost(tracks, dets, det_idx, thresh, stage != self.STAGE_LOW)
         thresh = {self.STAGE_HIGH: c.jcma_thresh_high, self.STAGE_LOW: c.jcma_thresh_low}.get(
-            stage, c.jcma_thresh_tentative)
+            stage, c.jcma_thresh_tentative
+        )
         n_t, n_d = len(tracks), len(det_idx)
         if n_t == 0 or n_d == 0:
             return np.zeros((n_t, n_d)), np.zeros((n_t, n_d), dtype=bool), thresh
         if is_small_pool(n_t, n_d, n_t):  # Python rows straight from the per-frame cache
             rows = self._motion_rows_for(tracks, t)
-            cost, gate = jcma_cost_rows(rows, [tr.hits >= 2 for tr in tracks], dets[det_idx, :4].tolist(),
-                                        [row[11:13] for row in rows], range(n_t), self._weights)
+            cost, gate = jcma_cost_rows(
+                rows,
+                [tr.hits >= 2 for tr in tracks],
+                dets[det_idx, :4].tolist(),
+                [row[11:13] for row in rows],
+                range(n_t),
+                self._weights,
+            )
         else:
             motion, centres = self._motion(tracks, t)
             cost, gate = jcma_cost(motion, dets[det_idx, :4], centres, np.arange(n_t), self._weights)
@@ -200,8 +222,14 @@ class JPTrack(MultiStageTracker):
 
     # --- stage 3: PMR -----------------------------------------------------------------------
     def _recover(
-        self, lost: list[Track], dets: np.ndarray, rest_high: np.ndarray, rest_low: np.ndarray,
-        t: float, rel: list[tuple[float, float]], updated: set[int],
+        self,
+        lost: list[Track],
+        dets: np.ndarray,
+        rest_high: np.ndarray,
+        rest_low: np.ndarray,
+        t: float,
+        rel: list[tuple[float, float]],
+        updated: set[int],
     ) -> tuple[np.ndarray, np.ndarray]:
         c = self.config
         if not c.use_pmr or not lost:
@@ -225,8 +253,7 @@ class JPTrack(MultiStageTracker):
         for i in rows:
             tr = lost[i]
             if tr.pmr_model is None:
-                tr.pmr_model = fit_pmr(settled_history(tr), tr.last_update_t, c.gamma, c.ref_fps,
-                                      backend=c.pmr_backend)
+                tr.pmr_model = fit_pmr(settled_history(tr), tr.last_update_t, c.gamma, c.ref_fps, backend=c.pmr_backend)
                 self.pmr_fits += 1
             models.append(tr.pmr_model)
         score = np.zeros((len(lost), len(cand)))

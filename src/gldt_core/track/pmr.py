@@ -101,7 +101,11 @@ def history_features(history: np.ndarray, t_loss: float, gamma: float, ref_fps: 
 
 
 def fit_pmr(
-    history: np.ndarray, t_loss: float, gamma: float, ref_fps: float, seed: int = 0,
+    history: np.ndarray,
+    t_loss: float,
+    gamma: float,
+    ref_fps: float,
+    seed: int = 0,
     backend: str = "numpy",
 ) -> PmrModel:
     """Fit the mixture of eq. 19 by EM on a lost track's history.
@@ -135,9 +139,15 @@ def fit_pmr(
         if backend == "sklearn":
             from sklearn.mixture import GaussianMixture
 
-            gmm = GaussianMixture(n_components=k, covariance_type="full", reg_covar=REG_COVAR,
-                                  max_iter=MAX_ITER, tol=TOL, random_state=seed,
-                                  init_params="random_from_data")
+            gmm = GaussianMixture(
+                n_components=k,
+                covariance_type="full",
+                reg_covar=REG_COVAR,
+                max_iter=MAX_ITER,
+                tol=TOL,
+                random_state=seed,
+                init_params="random_from_data",
+            )
             with _single_thread():
                 gmm.fit(diff / scale)
             w_std, m_std, c_std = gmm.weights_, gmm.means_, gmm.covariances_
@@ -171,7 +181,11 @@ def p_match(
 
 
 def p_match_many(
-    models: list[PmrModel], centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float,
+    models: list[PmrModel],
+    centers: np.ndarray,
+    t: float,
+    ref_fps: float,
+    pos_std_size: float,
     vel_std: float,
 ) -> np.ndarray:
     """:func:`p_match` of every model at once, ``(len(models), D)``.
@@ -220,7 +234,11 @@ SMALL_MATCH_PAIRS = 32
 
 
 def _p_match_small(
-    models: list[PmrModel], centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float,
+    models: list[PmrModel],
+    centers: np.ndarray,
+    t: float,
+    ref_fps: float,
+    pos_std_size: float,
     vel_std: float,
 ) -> np.ndarray:
     """:func:`p_match_many` for a few components and detections, on Python floats: the stacked
@@ -254,9 +272,9 @@ def _p_match_small(
     out = []
     row = 0
     for w in weights:
-        acc = [w[0] * v for v in like[row * n_d:(row + 1) * n_d]]
+        acc = [w[0] * v for v in like[row * n_d : (row + 1) * n_d]]
         for k in range(1, len(w)):
-            acc = [a + w[k] * v for a, v in zip(acc, like[(row + k) * n_d:(row + k + 1) * n_d])]
+            acc = [a + w[k] * v for a, v in zip(acc, like[(row + k) * n_d : (row + k + 1) * n_d])]
         out.append(acc)
         row += len(w)
     return np.array(out).reshape(len(models), n_d)
@@ -330,7 +348,7 @@ def _e_step(x: np.ndarray, weights: np.ndarray, means: np.ndarray, prec_chol: np
     d = x.shape[1]
     y = x @ prec_chol - (means[:, None, :] @ prec_chol)  # (k, n, d)
     log_det = np.log(np.diagonal(prec_chol, axis1=1, axis2=2)).sum(axis=1)
-    log_prob = (-0.5 * (d * _LOG_2PI + np.einsum("knd,knd->nk", y, y)) + log_det)
+    log_prob = -0.5 * (d * _LOG_2PI + np.einsum("knd,knd->nk", y, y)) + log_det
     weighted = log_prob + np.log(weights)
     # The ufunc reductions behind ndarray.max/.sum/np.mean, without their Python wrappers.
     top = np.maximum.reduce(weighted, axis=1, keepdims=True)

@@ -43,7 +43,7 @@ def track_detection_rows(
         accepts_frame = False
     out: list[np.ndarray] = []
     for f in range(1, num_frames + 1):
-        block = rows[starts[f - 1]:starts[f]]
+        block = rows[starts[f - 1] : starts[f]]
         dets = np.empty((len(block), 5))
         dets[:, 0] = block[:, 2]
         dets[:, 1] = block[:, 3]

@@ -7,7 +7,7 @@ from collections import deque
 
 import numpy as np
 
-from gldt_core.track.geometry import cxcywh_to_xyxy, xyxy_to_cxcywh
+from gldt_core.track.boxes import cxcywh_to_xyxy, xyxy_to_cxcywh
 from gldt_core.track.kalman import ConstantVelocityKalman, predict_many, update_many
 
 
@@ -118,8 +118,9 @@ class Track:
         x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
         self._after_update(x1, y1, x2, y2, float(score), t, rel_xy)
 
-    def _after_update(self, x1: float, y1: float, x2: float, y2: float, score: float, t: float,
-                      rel_xy: tuple[float, float]) -> None:
+    def _after_update(
+        self, x1: float, y1: float, x2: float, y2: float, score: float, t: float, rel_xy: tuple[float, float]
+    ) -> None:
         """``after_update`` on Python floats (callers that already unpacked the box skip an array
         round trip per track)."""
         self.last_obs_xy = ((x1 + x2) * 0.5, (y1 + y2) * 0.5)

@@ -26,10 +26,9 @@ from sensor_msgs.msg import CompressedImage, Image
 from gldt_core.detect import GlobalDetector, LocalDetector
 from gldt_core.detect.postprocess import Letterbox
 from gldt_core.detect.staged import prepare_global_input
-
-from gldt_ros import qos, topics
-from gldt_ros.convert import bgr_to_image, image_to_bgr, msgs_to_rois, stamp_nanoseconds, track_array_to_rows
-from gldt_ros.node_base import GldtNode, run_node
+from gldt_ros.interface import qos, topics
+from gldt_ros.interface.convert import bgr_to_image, image_to_bgr, msgs_to_rois, stamp_nanoseconds, track_array_to_rows
+from gldt_ros.runtime.node_base import GldtNode, run_node
 
 #: Frames kept while waiting for the scheduler's answer (the answer normally comes within one).
 PENDING_FRAMES = 8
@@ -64,7 +63,7 @@ class FramePairBuffer(GldtNode):
         self._size: tuple[int, int] | None = None
         self._previous_index: int | None = None
         # (frame index, letterboxed input) of the last GD frame: the next GD frame's predecessor,
-        # so a GD stretch letterboxes each 1080p frame once, not twice (as GLDTPipeline does).
+        # so a GD stretch letterboxes each 1080p frame once, not twice (as GLDTSystem does).
         self._last_prepared: tuple[int, np.ndarray] | None = None
         self._last_mode: int | None = None
         # (frame index, stamp in ns) of the last pair the global detector answered: that frame's
@@ -73,15 +72,19 @@ class FramePairBuffer(GldtNode):
         camera_qos = qos.camera_qos(self.param("camera_qos"))
         transport = self.param("image_transport")
         if transport in ("auto", "compressed"):
-            self.create_subscription(CompressedImage, topics.IMAGE_COMPRESSED, self.guarded(self.on_image, "image"), camera_qos)
+            self.create_subscription(
+                CompressedImage, topics.IMAGE_COMPRESSED, self.guarded(self.on_image, "image"), camera_qos
+            )
         if transport in ("auto", "raw"):
             self.create_subscription(Image, topics.IMAGE_RAW, self.guarded(self.on_image, "image"), camera_qos)
-        self.create_subscription(SchedulerState, topics.SCHEDULER_STATE, self.guarded(self.on_decision, "decision"), qos.RELIABLE)
+        self.create_subscription(
+            SchedulerState, topics.SCHEDULER_STATE, self.guarded(self.on_decision, "decision"), qos.RELIABLE
+        )
         self.ticks = self.create_publisher(FrameTick, topics.FRAME_TICKS, qos.RELIABLE)
         # A pair is 2 MB, and a reliable writer keeps its last `depth` samples for resending. The
         # global detector only wants the newest pair (its pair_queue_depth), so two are enough.
         # With thirty (qos.RELIABLE) this process settled at about 200 MiB instead of 146 MiB
-        # (gldt_ros.soak_graph, 10 min), in steps as the writer's history filled.
+        # (gldt_ros.bench.soak, 10 min), in steps as the writer's history filled.
         self.pairs = self.create_publisher(FramePair, topics.FRAME_PAIRS, qos.newest_first(PAIRS_KEPT))
         self.crops = self.create_publisher(RoiCrops, topics.ROI_CROPS, qos.RELIABLE)
         # Debug overlay: drawn here, where the full frame is, and only while someone watches.
@@ -134,7 +137,9 @@ class FramePairBuffer(GldtNode):
             else:
                 prepared_previous, _ = prepare_global_input(self.global_input, previous)
             self._last_prepared = (index, prepared_current)
-            previous_image = Image(header=header) if prepared_previous is None else bgr_to_image(prepared_previous, header)
+            previous_image = (
+                Image(header=header) if prepared_previous is None else bgr_to_image(prepared_previous, header)
+            )
             self.pairs.publish(
                 FramePair(
                     header=header,
@@ -162,7 +167,10 @@ class FramePairBuffer(GldtNode):
                     crops=crops,
                 )
             )
-        self._decisions[index] = ("GD" if decision.mode == SchedulerState.MODE_GLOBAL else "LD", msgs_to_rois(decision.rois))
+        self._decisions[index] = (
+            "GD" if decision.mode == SchedulerState.MODE_GLOBAL else "LD",
+            msgs_to_rois(decision.rois),
+        )
         while len(self._decisions) > PENDING_FRAMES:
             self._decisions.popitem(last=False)
         # Every frame becomes the next frame's predecessor, LD frames included, so the first GD
@@ -184,6 +192,7 @@ class FramePairBuffer(GldtNode):
         if index not in self._frames or self._global_answered is None:
             return False
         return self._global_answered == (index, stamp_nanoseconds(self._frames[index].header.stamp))
+
     def on_tracks(self, array: TrackArray) -> None:
         """Publish the debug overlay (boxes, ids, mode, ROIs) of the frame these tracks are for."""
         if self.debug_image.get_subscription_count() == 0:
@@ -191,7 +200,7 @@ class FramePairBuffer(GldtNode):
         index = int(array.frame_index)
         if index not in self._frames:
             return  # already evicted: the overlay is best effort
-        from gldt_core.pipeline.overlay import draw_overlay
+        from gldt_core.viz.overlay import draw_overlay
 
         buffered = self._frames[index]
         mode, rois = self._decisions.get(index, ("GD", np.zeros((0, 4), np.int64)))

@@ -21,13 +21,11 @@ from gldt_msgs.msg import Detection, DetectionArray, FramePair
 from gldt_core.detect import GlobalDetector
 from gldt_core.detect.postprocess import Letterbox
 from gldt_core.detect.staged import GlobalCarry, detect_global_streamed
-from gldt_core.pipeline.steps import filter_classes
-
-from gldt_ros import qos, topics
-from gldt_ros.convert import detections_to_msgs, image_to_bgr
-from gldt_ros.node_base import GldtNode, run_node
-from gldt_ros.params import detector_kwargs, parse_classes
-
+from gldt_core.system.steps import filter_classes
+from gldt_ros.interface import qos, topics
+from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr
+from gldt_ros.interface.params import detector_kwargs, parse_classes
+from gldt_ros.runtime.node_base import GldtNode, run_node
 
 #: Blank pairs run before the node reports ready (:meth:`GlobalDetectorNode.warm_up`): the first
 #: computes the previous frame's features too, the second reuses them, as in a GD stretch.

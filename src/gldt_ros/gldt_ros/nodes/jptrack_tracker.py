@@ -16,22 +16,21 @@ from gldt_msgs.msg import DetectionArray, FrameTick, TrackArray, TrackPrediction
 from sensor_msgs.msg import CameraInfo
 from visualization_msgs.msg import MarkerArray
 
-from gldt_core.geometry import PinholeIntrinsics
-from gldt_core.pipeline.config import PipelineConfig, TrackerSettings
-from gldt_core.pipeline.pipeline import accepts_keyword, build_tracker
-from gldt_core.pipeline.stamps import StampOrder
-from gldt_core.pipeline.steps import stable_predictions
-
-from gldt_ros import qos, topics
-from gldt_ros.convert import detection_array_to_tracker_input, msgs_to_rois, stamp_seconds, track_to_msg
-from gldt_ros.planner import fill_planner_fields, markers_for
-from gldt_ros.node_base import GldtNode, run_node
+from gldt_core.camera import PinholeIntrinsics
+from gldt_core.system.config import SystemConfig, TrackerSettings
+from gldt_core.system.gldt_system import accepts_keyword, build_tracker
+from gldt_core.system.stamps import StampOrder
+from gldt_core.system.steps import stable_predictions
+from gldt_ros.interface import qos, topics
+from gldt_ros.interface.convert import detection_array_to_tracker_input, msgs_to_rois, stamp_seconds, track_to_msg
+from gldt_ros.interface.track_fields import fill_planner_fields, markers_for
+from gldt_ros.runtime.node_base import GldtNode, run_node
 
 
 class TrackerNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("jptrack_tracker", **kwargs)
-        self.config = PipelineConfig(
+        self.config = SystemConfig(
             tracker=TrackerSettings(name=self.param("tracker")), track_lost_frames=int(self.param("lost_frames_kept"))
         )
         self.tracker = build_tracker(self.config)
@@ -40,9 +39,16 @@ class TrackerNode(GldtNode):
         self.intrinsics = None
         self._order = StampOrder()
         self._last_tracked_stamp = Time()  # zero: nothing tracked yet
-        self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
+        self.create_subscription(
+            DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE
+        )
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
-        self.create_subscription(CameraInfo, topics.CAMERA_INFO, self.guarded(self.on_camera_info, "camera_info"), qos.camera_qos(self.param("camera_qos")))
+        self.create_subscription(
+            CameraInfo,
+            topics.CAMERA_INFO,
+            self.guarded(self.on_camera_info, "camera_info"),
+            qos.camera_qos(self.param("camera_qos")),
+        )
         self.track_publisher = self.create_publisher(TrackArray, topics.TRACKS, qos.RELIABLE)
         self.prediction_publisher = self.create_publisher(TrackPredictions, topics.TRACK_PREDICTIONS, qos.RELIABLE)
         self.marker_publisher = self.create_publisher(MarkerArray, topics.TRACK_MARKERS, qos.RELIABLE)
@@ -58,7 +64,7 @@ class TrackerNode(GldtNode):
         t = stamp_seconds(tick.header.stamp)
         size = (int(tick.width), int(tick.height))
         if size != self._frame_size:
-            # Distance costs are normalised by the image size, as GLDTPipeline does per stream.
+            # Distance costs are normalised by the image size, as GLDTSystem does per stream.
             if self._frame_size is not None:
                 self.get_logger().warning(f"frame size changed to {size[0]}x{size[1]}; tracker re-initialised")
             self.tracker = build_tracker(self.config, size)
@@ -86,7 +92,7 @@ class TrackerNode(GldtNode):
 
     def _check_time(self, t: float, frame_index: int) -> None:
         """Drop late messages (StaleMessage: logged and counted by ``guarded``); reset the tracker
-        when the stream really restarted (:class:`gldt_core.pipeline.stamps.StampOrder`)."""
+        when the stream really restarted (:class:`gldt_core.system.stamps.StampOrder`)."""
         last = self._order.last_stamp
         if self._order.check(t, frame_index):
             self.get_logger().warning(

@@ -14,12 +14,11 @@ from gldt_msgs.msg import Detection, DetectionArray, RoiCrops
 
 from gldt_core.detect import LocalDetector
 from gldt_core.detect.staged import detect_local_crops
-from gldt_core.pipeline.steps import merge_local_detections
-
-from gldt_ros import qos, topics
-from gldt_ros.convert import detections_to_msgs, image_to_bgr, msgs_to_rois
-from gldt_ros.node_base import GldtNode, run_node
-from gldt_ros.params import detector_kwargs, parse_classes
+from gldt_core.system.steps import merge_local_detections
+from gldt_ros.interface import qos, topics
+from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr, msgs_to_rois
+from gldt_ros.interface.params import detector_kwargs, parse_classes
+from gldt_ros.runtime.node_base import GldtNode, run_node
 
 
 class LocalDetectorNode(GldtNode):

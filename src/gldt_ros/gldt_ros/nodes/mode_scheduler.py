@@ -1,7 +1,7 @@
 """mode_scheduler: owns the GD/LD mode and the ROIs (paper: N_g, N_l, N_m; ROI manager).
 
 For every frame the tracker sends its predictions (``TrackPredictions``); the scheduler runs the
-core :class:`~gldt_core.pipeline.scheduler.ModeScheduler` on them and publishes its decision
+core :class:`~gldt_core.schedule.scheduler.ModeScheduler` on them and publishes its decision
 (``SchedulerState``, plus the ROIs alone on ``gldt/rois``). Detections coming back for a LOCAL
 frame are counted per ROI and reported to the state machine, which drives the N_m rule.
 
@@ -21,14 +21,11 @@ from typing import Any
 import numpy as np
 from gldt_msgs.msg import DetectionArray, RoiArray, SchedulerState, TrackPredictions
 
-from gldt_core.pipeline.roi import RoiParams
-from gldt_core.pipeline.scheduler import ModeScheduler, SchedulerConfig
-
-from gldt_ros import qos, topics
-from gldt_ros.convert import rois_to_msgs, stamp_seconds
-from gldt_ros.node_base import GldtNode, run_node
-
-
+from gldt_core.schedule.roi import RoiParams
+from gldt_core.schedule.scheduler import ModeScheduler, SchedulerConfig
+from gldt_ros.interface import qos, topics
+from gldt_ros.interface.convert import rois_to_msgs, stamp_seconds
+from gldt_ros.runtime.node_base import GldtNode, run_node
 
 
 class ModeSchedulerNode(GldtNode):
@@ -50,8 +47,12 @@ class ModeSchedulerNode(GldtNode):
         self._awaiting_since = 0.0
         self.create_timer(0.05, self._check_report_timeout)
         self._queue: deque[TrackPredictions] = deque()
-        self.create_subscription(TrackPredictions, topics.TRACK_PREDICTIONS, self.guarded(self.on_predictions, "predictions"), qos.RELIABLE)
-        self.create_subscription(DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE)
+        self.create_subscription(
+            TrackPredictions, topics.TRACK_PREDICTIONS, self.guarded(self.on_predictions, "predictions"), qos.RELIABLE
+        )
+        self.create_subscription(
+            DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE
+        )
         self.state_publisher = self.create_publisher(SchedulerState, topics.SCHEDULER_STATE, qos.RELIABLE)
         self.latched_publisher = self.create_publisher(SchedulerState, topics.SCHEDULER_LATEST, qos.LATCHED_STATE)
         self.roi_publisher = self.create_publisher(RoiArray, topics.ROIS, qos.RELIABLE)
@@ -71,7 +72,10 @@ class ModeSchedulerNode(GldtNode):
             return False
         awaited_stamp = self._plans[self._awaiting_report].stamp
         newest = self._queue[-1]
-        return stamp_seconds(newest.header.stamp) > awaited_stamp and stamp_seconds(newest.last_tracked_stamp) < awaited_stamp
+        return (
+            stamp_seconds(newest.header.stamp) > awaited_stamp
+            and stamp_seconds(newest.last_tracked_stamp) < awaited_stamp
+        )
 
     def _check_report_timeout(self) -> None:
         """Never wait forever for a LOCAL frame's detections: a dropped frame must not stall the graph.
@@ -79,11 +83,14 @@ class ModeSchedulerNode(GldtNode):
         Frames that queued up meanwhile are stale (the frame buffer keeps only the newest few, so
         their decisions could no longer be served, and each LOCAL one would wait again): only the
         newest is planned."""
-        if self._awaiting_report is not None and time.monotonic() - self._awaiting_since > float(self.param("report_timeout")):
+        if self._awaiting_report is not None and time.monotonic() - self._awaiting_since > float(
+            self.param("report_timeout")
+        ):
             stale = len(self._queue) - 1
             skipped = f"; skipping {stale} stale queued frame(s)" if stale > 0 else ""
             self.warn_throttled(
-                "report-timeout", f"no detections for LOCAL frame {self._awaiting_report}; planning on without them{skipped}"
+                "report-timeout",
+                f"no detections for LOCAL frame {self._awaiting_report}; planning on without them{skipped}",
             )
             while len(self._queue) > 1:
                 self._queue.popleft()
@@ -105,13 +112,26 @@ class ModeSchedulerNode(GldtNode):
     def _plan(self, message: TrackPredictions) -> None:
         stamp = stamp_seconds(message.header.stamp)
         size = (int(message.width), int(message.height))
-        if (self._size is not None and size != self._size) or (self._last_stamp is not None and stamp <= self._last_stamp):
-            self.get_logger().warning(f"frame {message.frame_index}: size change or time going backwards; scheduler reset")
+        if (self._size is not None and size != self._size) or (
+            self._last_stamp is not None and stamp <= self._last_stamp
+        ):
+            self.get_logger().warning(
+                f"frame {message.frame_index}: size change or time going backwards; scheduler reset"
+            )
             self.scheduler.reset()
             self._plans.clear()
         self._size, self._last_stamp = size, stamp
         predictions = np.array(
-            [(t.center_x - t.width / 2, t.center_y - t.height / 2, t.center_x + t.width / 2, t.center_y + t.height / 2, t.id) for t in message.tracks],
+            [
+                (
+                    t.center_x - t.width / 2,
+                    t.center_y - t.height / 2,
+                    t.center_x + t.width / 2,
+                    t.center_y + t.height / 2,
+                    t.id,
+                )
+                for t in message.tracks
+            ],
             dtype=np.float64,
         ).reshape(-1, 5)
         plan = self.scheduler.plan_frame(stamp, size, predictions)

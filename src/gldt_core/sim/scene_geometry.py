@@ -1,0 +1,181 @@
+"""Scene geometry without pixels: camera offsets, tracks, boxes and visibilities of every frame.
+
+:class:`SceneGeometry` is shared by :func:`scene_ground_truth` (which stops here, so it is fast)
+and the renderer (which draws exactly these objects), which is how the two agree exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+from gldt_core.sim.airframes import bird_model, box_extents, rotation_matrices
+from gldt_core.sim.background import canvas_size, cloud_field, ridge_profile, sample_cloud, terrain_visibility
+from gldt_core.sim.motion import Track, bird_tracks, camera_offsets, target_tracks
+from gldt_core.sim.spec import BIRD_ID_BASE, CLASS_BIRD, CLASS_DRONE, SceneSpec
+from gldt_core.sim.style import SceneStyle, scene_style
+
+
+@dataclass
+class ObjectState:
+    """One object in one frame: what the renderer draws and what the ground truth records."""
+
+    track_id: int
+    class_id: int
+    track: Track
+    frame: int
+    centre: np.ndarray  # view px (after ego-motion)
+    rotation: np.ndarray  # (3, 3)
+    box: np.ndarray  # unclipped x1, y1, x2, y2 in view px
+    occlusion: float  # cloud opacity in front of it (0 when in front of the clouds)
+    visibility: float  # (1 - occlusion) * unhidden-by-terrain fraction * fraction inside the view
+
+
+class SceneGeometry:
+    """Everything about a scene except pixels; cheap (no image buffers)."""
+
+    def __init__(self, spec: SceneSpec) -> None:
+        self.spec = spec
+        self.style: SceneStyle = scene_style(spec)
+        self.clouds = cloud_field(spec, self.style)
+        self.canvas_wh = canvas_size(spec, self.style)
+        self.ridge, _ = ridge_profile(spec, self.style)
+        self.camera = camera_offsets(spec, self.style)
+        self.targets = target_tracks(spec, self.style)
+        self.birds = bird_tracks(spec, self.style)
+
+    @cached_property
+    def _target_boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per target: rotations (F, 3, 3) and world boxes (F, 4)."""
+        result = []
+        for track in self.targets:
+            rotations = rotation_matrices(track.yaw, track.pitch, track.roll, track.bank, track.elevation)
+            extents = box_extents(track.airframe, rotations) * track.span[:, None]
+            boxes = extents + np.tile(track.centre, 2)
+            result.append((rotations, boxes))
+        return result
+
+    def objects(self, frame: int) -> list[ObjectState]:
+        """Objects whose box overlaps the view in ``frame`` (0-based), drones then birds."""
+        spec = self.spec
+        if not 0 <= frame < spec.frames:
+            raise ValueError(f"frame {frame} out of range 0..{spec.frames - 1}")
+        shift = np.tile(self.camera[frame].astype(float), 2)
+        states: list[ObjectState] = []
+        for index, track in enumerate(self.targets):
+            rotations, boxes = self._target_boxes[index]
+            occlusion = 0.0
+            if track.behind_clouds:
+                canvas_xy = track.centre[frame] + np.array(self.style.margin, float)
+                occlusion = float(sample_cloud(self.clouds, self.canvas_wh, canvas_xy[0], canvas_xy[1]))
+            terrain = 1.0
+            if track.behind_terrain:
+                canvas_box = boxes[frame] + np.tile(np.array(self.style.margin, float), 2)
+                terrain = terrain_visibility(self.ridge, canvas_box)
+            state = self._state(
+                index + 1, CLASS_DRONE, track, frame, rotations[frame], boxes[frame] - shift, occlusion, terrain
+            )
+            if state is not None:
+                states.append(state)
+        for index, track in enumerate(self.birds):
+            model = bird_model(float(track.flap_phase[frame]))
+            rotation = rotation_matrices(
+                track.yaw[frame], track.pitch[frame], track.roll[frame], track.bank[frame], track.elevation[frame]
+            )
+            box = box_extents(model, rotation) * track.span[frame] + np.tile(track.centre[frame], 2)
+            state = self._state(BIRD_ID_BASE + index, CLASS_BIRD, track, frame, rotation, box - shift, 0.0)
+            if state is not None:
+                states.append(state)
+        return states
+
+    def _state(
+        self,
+        track_id: int,
+        class_id: int,
+        track: Track,
+        frame: int,
+        rotation: np.ndarray,
+        box: np.ndarray,
+        occlusion: float,
+        terrain: float = 1.0,
+    ) -> ObjectState | None:
+        width, height = self.spec.size
+        clipped = np.array([max(box[0], 0.0), max(box[1], 0.0), min(box[2], width), min(box[3], height)])
+        if clipped[2] - clipped[0] < 1.0 or clipped[3] - clipped[1] < 1.0:
+            return None
+        area = max((box[2] - box[0]) * (box[3] - box[1]), 1e-9)
+        inside = (clipped[2] - clipped[0]) * (clipped[3] - clipped[1]) / area
+        centre = track.centre[frame] - self.camera[frame]
+        return ObjectState(
+            track_id, class_id, track, frame, centre, rotation, box, occlusion, (1.0 - occlusion) * terrain * inside
+        )
+
+    def ground_truth(self, frame: int) -> np.ndarray:
+        """MOT rows (K, 10) of ``frame`` (0-based): boxes clipped to the view, 2-decimal px."""
+        return rows_from_states(self.objects(frame), frame, self.spec.size)
+
+
+def rows_from_states(states: list[ObjectState], frame: int, size: tuple[int, int]) -> np.ndarray:
+    """MOT rows for object states: ``frame+1, id, x, y, w, h, 1, class, visibility, -1``."""
+    width, height = size
+    rows = []
+    for state in states:
+        x1 = round(max(state.box[0], 0.0), 2)
+        y1 = round(max(state.box[1], 0.0), 2)
+        x2 = round(min(state.box[2], float(width)), 2)
+        y2 = round(min(state.box[3], float(height)), 2)
+        rows.append(
+            [
+                frame + 1,
+                state.track_id,
+                x1,
+                y1,
+                round(x2 - x1, 2),
+                round(y2 - y1, 2),
+                1,
+                state.class_id,
+                round(state.visibility, 3),
+                -1,
+            ]
+        )
+    if not rows:
+        return np.zeros((0, 10))
+    return np.asarray(rows, dtype=np.float64)
+
+
+def scene_ground_truth(
+    seed: int,
+    frames: int,
+    size: tuple[int, int] = (1920, 1080),
+    targets: int = 3,
+    fps: float = 30.0,
+    **spec_fields: object,
+) -> np.ndarray:
+    """The MOT ground truth (N, 10) the renderer draws for these arguments, without rendering.
+
+    Columns: frame (1-based), id, x, y, w, h (top-left, px, clipped to the view), considered (1),
+    class (1 drone, 2 bird: distractor, ids from 1001), visibility (0..1: cloud occlusion times
+    the fraction inside the view), -1. Drones have ids 1..targets. Extra keyword arguments are
+    :class:`SceneSpec` fields (``target_size``, ``birds``, ...). Filter ``gt[:, 7] == 1`` for
+    drones only.
+    """
+    spec = SceneSpec(
+        seed=seed,
+        frames=frames,
+        size=tuple(size),
+        targets=targets,
+        fps=fps,  # type: ignore[arg-type]
+        **spec_fields,
+    )  # type: ignore[arg-type]
+    return SceneGeometry(spec).all_ground_truth()
+
+
+def _all_ground_truth(self: SceneGeometry) -> np.ndarray:
+    tables = [self.ground_truth(k) for k in range(self.spec.frames)]
+    tables = [t for t in tables if len(t)]
+    return np.concatenate(tables) if tables else np.zeros((0, 10))
+
+
+SceneGeometry.all_ground_truth = _all_ground_truth  # type: ignore[attr-defined]

@@ -1,0 +1,460 @@
+"""``pipeline``: start the GL-DT graph, optionally replay a bag into it and record its outputs.
+
+Like a launch file, it starts each node in its own process by default (``--in-process`` runs all
+of them in one executor instead, which is handy for debugging and profiling). With ``--bag`` it
+plays the bag's camera, camera_info and ground-truth topics into the graph, either at the bag's
+pace times ``--rate`` or in ``--lockstep``: frame t+1 is only published after ``/gldt/tracks``
+has answered frame t, which makes a replay deterministic. ``--record OUT.mcap`` writes every
+output topic, with its type, to an MCAP file. The run ends at the bag's end or on Ctrl-C, and the
+child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if they hang).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from gldt_ros.runtime.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
+from gldt_ros.runtime.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, background_executor, executor_kind
+from gldt_ros.runtime.heap_trim import DEFAULT_PERIOD_S, HEAP_TRIM_PERIOD_ENV, start_heap_trimming
+from gldt_ros.runtime.shm_cleanup import MIN_AGE_S, remove_dead_segments
+from gldt_ros.runtime.stack_dump import STACK_DUMP_SIGNAL
+from gldt_ros.runtime.teardown_limit import TEARDOWN_LIMIT_S, TEARDOWN_TIMEOUT_EXIT
+
+NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
+
+
+def default_params_file() -> Path:
+    """``share/gldt_ros/config/gldt.yaml`` of the installed package (or the source tree)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("gldt_ros")) / "config" / "gldt.yaml"
+    except Exception:  # noqa: BLE001 - the ament index is optional when run from source
+        return Path(__file__).resolve().parents[1] / "config" / "gldt.yaml"
+
+
+#: Memory settings for the node processes, applied where the user has not set them. A node handles
+#: buffers of a MiB or more every frame (a decoded 1080p frame is 6 MiB). With glibc's defaults
+#: they come from the heap, which only shrinks from its top, so resident memory climbs in steps
+#: over a long run (frame_pair_buffer +17.0 % over 10 min at 30 Hz, gldt_ros.bench.soak). Each node
+#: therefore calls malloc_trim every second (gldt_ros.runtime.heap_trim), which returns free pages from
+#: anywhere in the heap, and two arenas bound the per-thread growth. The former cure, a fixed 512 KiB
+#: mmap threshold (MALLOC_MMAP_THRESHOLD_=524288), gave every such buffer fresh pages to fault in:
+#: the 1080p bag's lockstep replay ran at 27.7 fps with it and 34.5-35.2 fps with trimming, two
+#: alternated runs each (2026-12-02); the memory figures are in the README (Results).
+NODE_MALLOC_SETTINGS = {"MALLOC_ARENA_MAX": "2", HEAP_TRIM_PERIOD_ENV: f"{DEFAULT_PERIOD_S:g}"}
+
+
+def node_environment(tune_malloc: bool, executor: str | None = None) -> dict[str, str]:
+    """The environment node processes start with: this one's, plus :data:`NODE_MALLOC_SETTINGS`
+    where ``tune_malloc`` and the user has not set them, the shipped small-segment DDS profile
+    where this process switched to its frames twin (each node picks its own), and ``executor``
+    (:mod:`gldt_ros.runtime.executor`) where given."""
+    env = profile_for_children(dict(os.environ))
+    if executor is not None:
+        env[EXECUTOR_ENV] = executor
+    if tune_malloc:
+        for key, value in NODE_MALLOC_SETTINGS.items():
+            env.setdefault(key, value)
+    return env
+
+
+def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="pipeline", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--bag", type=Path, help="rosbag2 MCAP (file or folder) to replay into the graph")
+    parser.add_argument("--record", type=Path, help="write the graph's outputs to this MCAP file")
+    pace = parser.add_mutually_exclusive_group()
+    pace.add_argument("--rate", type=float, default=1.0, help="replay speed factor (default 1.0)")
+    pace.add_argument("--lockstep", action="store_true", help="publish frame t+1 only after tracks for frame t")
+    parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: config/gldt.yaml)")
+    parser.add_argument("--namespace", default="", help="namespace of the graph (one per camera)")
+    parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
+    parser.add_argument(
+        "--frame-timeout", type=float, default=20.0, help="lockstep: seconds to wait for one frame's tracks"
+    )
+    parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all nodes to come up")
+    parser.add_argument(
+        "--max-restarts",
+        type=int,
+        default=5,
+        help="restarts of a node that dies after start-up (0: stop the graph instead)",
+    )
+    parser.add_argument(
+        "--default-malloc",
+        dest="tune_malloc",
+        action="store_false",
+        help=f"start node processes with glibc's default malloc and no heap trimming instead of {' '.join(f'{k}={v}' for k, v in NODE_MALLOC_SETTINGS.items())}",
+    )
+    parser.add_argument(
+        "--no-spare",
+        dest="spare",
+        action="store_false",
+        help="restart dead nodes from scratch instead of from a warm spare process (saves its memory)",
+    )
+    parser.add_argument(
+        "--spare-delay",
+        type=float,
+        default=SPARE_DELAY_S,
+        metavar="S",
+        help=f"seconds after start-up and after each restart before the warm spare starts importing (default {SPARE_DELAY_S:g}); a node that dies sooner restarts from scratch",
+    )
+    parser.add_argument(
+        "--executor",
+        choices=EXECUTOR_CHOICES,
+        default=None,
+        help=f"rclpy executor of the node processes and of the player (default: ${EXECUTOR_ENV}, else events; single is rclpy's Python executors, see gldt_ros.runtime.executor; --in-process keeps a thread pool)",
+    )
+    args = parser.parse_args(argv)
+    if args.executor is None:
+        try:
+            args.executor = executor_kind()
+        except ValueError as error:
+            parser.error(str(error))
+    if args.rate <= 0:
+        parser.error(f"--rate must be positive, got {args.rate}")
+    if not 0 <= args.spare_delay < float("inf"):
+        parser.error(f"--spare-delay must be a number of seconds >= 0, got {args.spare_delay}")
+    if args.bag is not None and not args.bag.exists():
+        parser.error(f"--bag {args.bag}: no such file or folder")
+    args.params = args.params or default_params_file()
+    if not args.params.is_file():
+        parser.error(f"--params {args.params}: no such file")
+    return args
+
+
+#: Parameter overrides a lockstep replay needs: the scheduler waits for LOCAL reports, and the
+#: buffer receives the player's reliable camera stream without drops.
+LOCKSTEP_OVERRIDES = {"mode_scheduler": ["-p", "lockstep:=true"], "frame_pair_buffer": ["-p", "camera_qos:=reliable"]}
+
+
+def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
+    """``--ros-args`` of one node: the parameter file plus the lockstep overrides it needs.
+
+    In lockstep the scheduler gives up waiting for a LOCAL frame's detections when the player
+    gives up waiting for its tracks (``--frame-timeout``): past that the player has moved on, and
+    a scheduler still waiting (say for a local detector that was killed) would let the frames
+    queue up behind it faster than it plans them.
+    """
+    ros_args = ["--ros-args", "--params-file", str(args.params)]
+    if not args.lockstep:
+        return ros_args
+    extra = list(LOCKSTEP_OVERRIDES.get(name, []))
+    if name == "mode_scheduler":
+        extra += ["-p", f"report_timeout:={min(max(args.frame_timeout, 0.1), 600.0)}"]
+    return ros_args + extra
+
+
+def node_command(name: str, args: argparse.Namespace) -> list[str]:
+    """Command line of one node process."""
+    command = [sys.executable, "-m", f"gldt_ros.nodes.{name}", *node_ros_args(name, args)]
+    if args.namespace:
+        command += ["-r", f"__ns:=/{args.namespace.strip('/')}"]
+    return command
+
+
+#: Default seconds after start-up, and after each restart, before a spare is started: its imports
+#: (rclpy, numpy, OpenCV, onnxruntime, the core) take CPU the nodes need then. Started with the
+#: nodes, it made the global detector skip 2-5 frames, near the start, of a 30 Hz 1080p replay
+#: (85-88 of 90 answered, p99 80-109 ms, against 89-90 and 61-76 ms without a spare; three
+#: alternated runs each, 2026-12-02).
+SPARE_DELAY_S = 5.0
+
+
+class NodeProcesses:
+    """The child node processes: start, supervise (restart the ones that die), stop.
+
+    While supervising it keeps one warm spare (:mod:`gldt_ros.runtime.spare`, unless ``--no-spare``): an
+    interpreter with the node modules imported, which becomes the first node that dies, so a
+    restart skips the interpreter start and the imports.
+    """
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.processes: dict[str, subprocess.Popen[bytes]] = {}
+        self.restarts: dict[str, int] = {name: 0 for name in NODES}
+        self.supervising = False
+        self.spare: subprocess.Popen[bytes] | None = None
+        self._spare_due = time.monotonic() + args.spare_delay  # start-up, like a restart, goes first
+        # When to look for dead segments again: a node killed within MIN_AGE_S of the last look
+        # left a lock file too young for it to be told from a process that is starting up.
+        self._segments_due: float | None = None
+        self._lock = threading.Lock()
+        for name in NODES:
+            self._start(name)
+
+    def _start(self, name: str) -> None:
+        spare, self.spare = self.spare, None
+        if spare is not None and spare.poll() is None and spare.stdin is not None:
+            try:
+                request = json.dumps([name, *node_command(name, self.args)[3:]]) + "\n"
+                spare.stdin.write(request.encode())
+                spare.stdin.close()
+                self.processes[name] = spare
+                print(f"pipeline: started {name} (pid {spare.pid}, the warm spare)", flush=True)
+                return
+            except OSError:
+                self._discard_spare(spare)  # it died meanwhile; start from scratch
+        process = subprocess.Popen(
+            node_command(name, self.args),
+            start_new_session=True,
+            env=node_environment(self.args.tune_malloc, self.args.executor),
+        )
+        self.processes[name] = process
+        print(f"pipeline: started {name} (pid {process.pid})", flush=True)
+
+    def keep_spare(self) -> None:
+        """Start a spare if none is waiting, a restart is still allowed, and ``--spare-delay``
+        seconds have passed since start-up and since a spare was last used (or died)."""
+        if not self.args.spare or not self.supervising:
+            return
+        if not any(count < self.args.max_restarts for count in self.restarts.values()):
+            return
+        if self.spare is not None and self.spare.poll() is not None:
+            print(
+                f"pipeline: the warm spare exited with code {self.spare.returncode}; starting another later", flush=True
+            )
+            self._discard_spare(self.spare)
+            self.spare = None
+            self._spare_due = time.monotonic() + self.args.spare_delay
+        if self.spare is None and time.monotonic() >= self._spare_due:
+            self.spare = subprocess.Popen(
+                [sys.executable, "-m", "gldt_ros.runtime.spare"],
+                stdin=subprocess.PIPE,
+                start_new_session=True,
+                env=node_environment(self.args.tune_malloc, self.args.executor),
+            )
+
+    @staticmethod
+    def _discard_spare(spare: subprocess.Popen[bytes]) -> None:
+        """Stop a spare and release its pipe (it holds no state)."""
+        if spare.stdin is not None:
+            try:
+                spare.stdin.close()
+            except OSError:
+                pass
+        if spare.poll() is None:
+            spare.kill()
+        spare.wait()
+
+    def dead(self) -> list[str]:
+        """Nodes that are not running and will not be restarted."""
+        with self._lock:
+            return [
+                name
+                for name, process in self.processes.items()
+                if process.poll() is not None
+                and not (self.supervising and self.restarts[name] < self.args.max_restarts)
+            ]
+
+    def supervise(self, before_restart: Callable[[str], None] | None = None) -> list[str]:
+        """Restart every node that died (once start-up is over), at most ``--max-restarts`` times each.
+
+        A node dying is a fault to survive, not a reason to stop the graph: the others keep their
+        state and the restarted node rejoins through DDS discovery. ``before_restart(name)`` runs
+        before the new process starts (the driver notes which endpoints were the dead one's), and
+        outside this object's lock, which the driver's own waits take.
+        """
+        self._clean_segments_if_due()
+        with self._lock:
+            if not self.supervising:
+                return []
+            dying = [
+                name
+                for name, process in self.processes.items()
+                if process.poll() is not None and self.restarts[name] < self.args.max_restarts
+            ]
+        for name in dying:
+            if before_restart is not None:
+                try:
+                    before_restart(name)
+                except Exception as error:  # noqa: BLE001 - the supervisor must outlive a failed notice
+                    print(f"pipeline: noting the restart of {name} failed: {error}", flush=True)
+        restarted: list[str] = []
+        with self._lock:
+            if not self.supervising:
+                return restarted
+            for name in dying:
+                self.restarts[name] += 1
+                code = self.processes[name].returncode
+                print(
+                    f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})",
+                    flush=True,
+                )
+                self._start(name)
+                self._spare_due = time.monotonic() + self.args.spare_delay
+                restarted.append(name)
+            self.keep_spare()
+        if restarted:
+            report_removed_segments()
+            self._segments_due = time.monotonic() + MIN_AGE_S
+        return restarted
+
+    def _clean_segments_if_due(self) -> None:
+        """Look again for segments of nodes that died, once their lock files are old enough to be
+        judged (:data:`~gldt_ros.runtime.shm_cleanup.MIN_AGE_S` after the last restart)."""
+        due = self._segments_due
+        if due is None or time.monotonic() < due:
+            return
+        self._segments_due = None
+        report_removed_segments()
+
+    def stop(self, grace_s: float = 10.0) -> int:
+        """SIGINT every child, escalate to SIGTERM/SIGKILL; return the number that did not exit cleanly."""
+        with self._lock:
+            self.supervising = False
+            spare, self.spare = self.spare, None
+        if spare is not None:
+            self._discard_spare(spare)
+        for process in self.processes.values():
+            if process.poll() is None:
+                process.send_signal(signal.SIGINT)
+        deadline = time.monotonic() + grace_s
+        unclean = 0
+        for name, process in self.processes.items():
+            try:
+                code = process.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                print(
+                    f"pipeline: node {name} did not stop within {grace_s:g} s of SIGINT; its threads' stacks follow, then SIGTERM",
+                    flush=True,
+                )
+                process.send_signal(STACK_DUMP_SIGNAL)
+                time.sleep(0.5)  # faulthandler writes from its signal handler; let it finish
+                process.terminate()
+                try:
+                    code = process.wait(timeout=3.0)
+                except subprocess.TimeoutExpired:
+                    process.kill()
+                    code = process.wait()
+            if code == TEARDOWN_TIMEOUT_EXIT:
+                # Stopped serving, then stuck in rclpy's destroy_node; it ended itself (its stacks are above).
+                print(
+                    f"pipeline: node {name} stopped, but its rclpy teardown hung and it exited after {TEARDOWN_LIMIT_S} s",
+                    flush=True,
+                )
+            elif code not in (0, -signal.SIGINT, 130):
+                print(f"pipeline: node {name} exited with code {code}", flush=True)
+                unclean += 1
+        due = self._segments_due
+        if due is not None:  # a node died shortly before: let its lock file age enough to be judged
+            time.sleep(max(0.0, min(due - time.monotonic(), MIN_AGE_S)))
+        report_removed_segments()
+        return unclean
+
+
+def report_removed_segments() -> None:
+    """Remove the shared-memory segments of dead DDS processes (:mod:`gldt_ros.runtime.shm_cleanup`: a
+    killed node cannot remove its own) and say how many, if any."""
+    removed = remove_dead_segments()
+    if removed:
+        print(f"pipeline: removed {len(removed)} shared-memory segment(s) left by dead processes", flush=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``ros2 run gldt_ros pipeline``."""
+    args = parse_args(argv if argv is not None else sys.argv[1:])
+    import rclpy
+
+    from gldt_ros.launcher.replay import GraphDriver
+
+    use_graph_dds_profile()
+    use_frames_profile_if_shipped()  # this process plays the camera (and hosts the buffer --in-process)
+    rclpy.init(args=["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"] if args.namespace else None)
+    stop_requested = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
+    children: NodeProcesses | None = None
+    in_process_nodes = []
+    # --in-process: the five nodes share this process's executor, the events executor unless
+    # --executor single. rclpy's thread pool made a lockstep replay crawl at 1 fps there: with a
+    # node's callback running, its other subscriptions stay ready, and the pool's wait loop spun
+    # on them holding the GIL the running callback needed (py-spy, 2026-12-02).
+    executor, spin = background_executor(args.executor)
+    driver = GraphDriver(args)
+    executor.add_node(driver)
+    spin_thread = threading.Thread(target=spin, name="gldt-spin", daemon=True)
+    status = 0
+    started = time.monotonic()
+    try:
+        if args.in_process:
+            if args.tune_malloc:
+                start_heap_trimming(DEFAULT_PERIOD_S)  # the nodes' frames now churn this process's heap
+            in_process_nodes = _create_in_process_nodes(args)
+            for node in in_process_nodes:
+                executor.add_node(node)
+        else:
+            children = NodeProcesses(args)
+        spin_thread.start()
+        expected = [f"{args.namespace.strip('/')}/{n}".strip("/") for n in NODES]
+        if not driver.wait_for_nodes(expected, args.startup_timeout, lambda: children.dead() if children else []):
+            return 1
+        spun_by = f"the {args.executor} executor" + (", all in this process" if args.in_process else "")
+        print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s ({spun_by})", flush=True)
+        if children is not None:
+            children.supervising = True
+            supervisor = threading.Thread(
+                target=_supervise_until, args=(children, stop_requested, driver.note_restarted), daemon=True
+            )
+            supervisor.start()
+        if args.bag is not None:
+            summary = driver.replay(stop_requested, lambda: children.dead() if children else [])
+            print(summary, flush=True)
+        else:
+            while not stop_requested.is_set():
+                dead = children.dead() if children else []
+                if dead:
+                    print(f"pipeline: node(s) {', '.join(dead)} exited; stopping", flush=True)
+                    status = 1
+                    break
+                stop_requested.wait(0.2)
+    except KeyboardInterrupt:
+        print("pipeline: interrupted, stopping", flush=True)
+    finally:
+        stop_requested.set()
+        driver.close()
+        if children is not None and children.stop():
+            status = status or 1
+        executor.shutdown(timeout_sec=2.0)
+        if spin_thread.is_alive():
+            spin_thread.join(timeout=2.0)
+        for node in in_process_nodes:
+            node.destroy_node()
+        driver.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return status
+
+
+def _supervise_until(
+    children: NodeProcesses,
+    stop: threading.Event,
+    on_restart: Callable[[str], None] | None = None,
+    period_s: float = 0.2,
+) -> None:
+    """Restart dead nodes until asked to stop (each node prints "ready" once it is back up),
+    telling ``on_restart`` which before each starts (the driver relinks the graph before its next
+    lockstep frame)."""
+    while not stop.wait(period_s):
+        children.supervise(on_restart)
+
+
+def _create_in_process_nodes(args: argparse.Namespace) -> list:
+    """Instantiate every node in this process with the parameter file applied."""
+    import importlib
+
+    return [
+        importlib.import_module(f"gldt_ros.nodes.{name}").create_node(cli_args=node_ros_args(name, args))
+        for name in NODES
+    ]
+
+
+if __name__ == "__main__":
+    sys.exit(main())

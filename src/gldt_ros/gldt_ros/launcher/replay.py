@@ -1,0 +1,367 @@
+"""The pipeline's own node: waits for the graph, plays a bag into it, records its outputs."""
+
+from __future__ import annotations
+
+import argparse
+import threading
+import time
+from collections.abc import Callable
+
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from gldt_ros.interface import qos, topics
+from gldt_ros.launcher.bag_io import IMAGE_TYPES_SET, McapRecorder, bag_topics, header_stamp_ns, iter_bag, message_class
+from gldt_ros.launcher.graph_links import (
+    missing_links,
+    node_endpoint_gids,
+    own_link_counts,
+    parse_link_counts,
+    reporting_nodes_missing,
+)
+from gldt_ros.launcher.pipeline import NODES
+from gldt_ros.runtime.node_base import STATUS_NAME_PREFIX
+
+#: Subscriptions each node creates last, once its models and state are ready: the graph is up when
+#: every one of them is matched (node names alone appear before a node finished starting).
+READY_SUBSCRIPTIONS = {
+    topics.FRAME_TICKS: 1,  # jptrack_tracker
+    topics.TRACK_PREDICTIONS: 1,  # mode_scheduler
+    topics.SCHEDULER_STATE: 1,  # frame_pair_buffer
+    topics.FRAME_PAIRS: 1,  # global_detector
+    topics.ROI_CROPS: 1,  # local_detector
+    topics.DETECTIONS: 2,  # jptrack_tracker, mode_scheduler
+}
+
+#: Publishers the graph must have, as this process sees them (the other half of being up).
+READY_PUBLISHERS = {
+    topics.FRAME_TICKS: 1,  # frame_pair_buffer
+    topics.FRAME_PAIRS: 1,  # frame_pair_buffer
+    topics.ROI_CROPS: 1,  # frame_pair_buffer
+    topics.SCHEDULER_STATE: 1,  # mode_scheduler
+    topics.TRACK_PREDICTIONS: 1,  # jptrack_tracker
+    topics.DETECTIONS: 2,  # global_detector, local_detector
+    topics.TRACKS: 1,  # jptrack_tracker
+}
+
+RECORDED_TOPICS = {
+    topics.TRACKS: "gldt_msgs/msg/TrackArray",
+    topics.DETECTIONS: "gldt_msgs/msg/DetectionArray",
+    topics.SCHEDULER_STATE: "gldt_msgs/msg/SchedulerState",
+}
+
+
+class GraphDriver(Node):
+    """Replays a bag (paced or in lockstep with ``/gldt/tracks``) and records the outputs.
+
+    In lockstep a restarted node (:meth:`note_restarted`) pauses the replay until the new process
+    is linked into the graph: the frame in flight is given up at once, and the next one goes out
+    only when every link is matched again, so it is answered instead of vanishing between a node
+    and a peer that has not discovered it yet. A paced replay does not wait (a camera would not).
+    """
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        super().__init__("gldt_pipeline")
+        self.args = args
+        self._answered: set[int] = set()
+        self._published_at: dict[int, float] = {}
+        self.latencies_s: list[float] = []
+        self._answered_cv = threading.Condition()
+        self.tracks_received = 0
+        # Newest header stamp received per recorded topic: a lockstep replay closes the recording
+        # only once every topic has caught up with the last frame (see wait_until_recorded).
+        self._newest_recorded: dict[str, int] = {}
+        self.recorder = McapRecorder(args.record) if args.record else None
+        for topic, msgtype in RECORDED_TOPICS.items():
+            self.create_subscription(
+                message_class(msgtype),
+                topic,
+                self._make_record_callback(topic, msgtype),
+                qos.RELIABLE,
+                raw=True,
+            )
+        self._bag_publishers: dict[str, object] = {}
+        # Each node's latest /diagnostics status (latched, so none is missed): its matched peers
+        # tell when the graph is linked, its counters go into reports.
+        self._statuses: dict[str, DiagnosticStatus] = {}
+        self._statuses_lock = threading.Lock()
+        self.create_subscription(
+            DiagnosticArray,
+            topics.DIAGNOSTICS,
+            self._on_diagnostics,
+            QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL),
+        )
+        # Restarted nodes the lockstep replay has not relinked yet: name -> endpoint ids of the
+        # dead process, which peers keep seeing until its DDS lease runs out.
+        self._restarted: dict[str, dict[str, set[bytes]]] = {}
+
+    def _on_diagnostics(self, array: DiagnosticArray) -> None:
+        for status in array.status:
+            if status.name.startswith(STATUS_NAME_PREFIX) and status.hardware_id == self.get_namespace():
+                with self._statuses_lock:
+                    self._statuses[status.name[len(STATUS_NAME_PREFIX) :]] = status
+
+    def node_statuses(self) -> dict[str, dict[str, str]]:
+        """The latest ``/diagnostics`` key/values of each node of this graph (``inputs``, ...)."""
+        with self._statuses_lock:
+            statuses = dict(self._statuses)
+        return {name: {pair.key: pair.value for pair in status.values} for name, status in statuses.items()}
+
+    def note_restarted(self, name: str) -> None:
+        """The supervisor is about to restart node ``name`` (called before the new process starts,
+        so nothing seen here is the new one's): forget its last status (its links were the dead
+        process's) and, in lockstep, stop waiting for the frame in flight and relink first."""
+        dead_endpoints = node_endpoint_gids(self, name, self.get_namespace())
+        with self._statuses_lock:
+            self._statuses.pop(name, None)
+        if self.args.lockstep:
+            with self._answered_cv:
+                self._restarted[name] = dead_endpoints
+                self._answered_cv.notify_all()
+
+    def _relink_after_restarts(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str | None:
+        """If nodes were restarted, block until each new process is visible and every link of
+        the graph is matched again (at most ``--startup-timeout``); returns what happened, in words."""
+        with self._answered_cv:
+            restarted = dict(self._restarted)
+        if not restarted:
+            return None
+        began = time.monotonic()
+        deadline = began + self.args.startup_timeout
+        waiting = set(restarted)
+        while waiting and not stop.is_set() and time.monotonic() < deadline and not waiting & set(dead()):
+            waiting = {name for name in waiting if not self._new_process_visible(name, restarted[name])}
+            if waiting:
+                stop.wait(0.02)
+        linked = not waiting and self.wait_until_linked(list(NODES), stop, max(0.0, deadline - time.monotonic()))
+        with self._answered_cv:
+            for name, endpoints in restarted.items():
+                if self._restarted.get(name) is endpoints:
+                    del self._restarted[name]
+        names = ", ".join(sorted(restarted))
+        if not linked:
+            return f"graph not linked again {time.monotonic() - began:.2f} s after restarting {names}; going on"
+        return f"graph linked again {time.monotonic() - began:.2f} s after restarting {names}"
+
+    def _new_process_visible(self, name: str, dead_endpoints: dict[str, set[bytes]]) -> bool:
+        """Whether this process sees the restarted node's own endpoints (not the dead ones) on
+        every topic the dead process had."""
+        if not dead_endpoints:
+            return bool(node_endpoint_gids(self, name, self.get_namespace()))
+        # Unnamed endpoints count: DDS matches a new process's endpoints about a second before
+        # the graph API learns their owner, and wait_until_linked judges the links themselves.
+        now = node_endpoint_gids(self, name, self.get_namespace(), topics=dead_endpoints, include_unnamed=True)
+        return all(now.get(topic, set()) - gids for topic, gids in dead_endpoints.items())
+
+    def _make_record_callback(self, topic: str, msgtype: str) -> Callable[[bytes], None]:
+        def callback(raw: bytes) -> None:
+            now = self.get_clock().now().nanoseconds
+            stamp = header_stamp_ns(raw)
+            if self.recorder is not None:
+                self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
+                with self._answered_cv:
+                    self._newest_recorded[topic] = max(stamp, self._newest_recorded.get(topic, stamp))
+                    self._answered_cv.notify_all()
+            if topic == topics.TRACKS:
+                received = time.monotonic()
+                with self._answered_cv:
+                    self.tracks_received += 1
+                    if self.args.lockstep:  # only lockstep waits on answers; free runs must not grow a set
+                        self._answered.add(stamp)
+                    published = self._published_at.pop(stamp, None)
+                    if published is not None:
+                        self.latencies_s.append(received - published)
+                    self._answered_cv.notify_all()
+
+        return callback
+
+    def wait_for_nodes(self, names: list[str], timeout_s: float, dead: Callable[[], list[str]]) -> bool:
+        """Block until every node name is visible in the graph; report a node that died instead."""
+        deadline = time.monotonic() + timeout_s
+        wanted = {"/" + name.strip("/") for name in names}
+        while time.monotonic() < deadline:
+            gone = dead()
+            if gone:
+                print(f"pipeline: node(s) {', '.join(gone)} exited during start-up", flush=True)
+                return False
+            present = {(namespace.rstrip("/") + "/" + name) for name, namespace in self.get_node_names_and_namespaces()}
+            if (
+                wanted <= present
+                and all(self.count_subscribers(topic) >= count for topic, count in READY_SUBSCRIPTIONS.items())
+                and all(self.count_publishers(topic) >= count for topic, count in READY_PUBLISHERS.items())
+            ):
+                return True
+            time.sleep(0.1)
+        print(f"pipeline: nodes not up after {timeout_s:.0f} s: {sorted(wanted - present)}", flush=True)
+        return False
+
+    def _publisher(self, topic: str, msgtype: str):
+        if topic not in self._bag_publishers:
+            reliable = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+            # Relative, so a namespaced graph (one per camera) gets the bag inside its namespace.
+            self._bag_publishers[topic] = self.create_publisher(message_class(msgtype), topic.lstrip("/"), reliable)
+        return self._bag_publishers[topic]
+
+    def _prepare_publishers(self, stop: threading.Event, timeout_s: float = 10.0) -> None:
+        """Create every publisher up front and wait until every link of the graph is matched.
+
+        Without this the first frames would be published before DDS discovery finished and be
+        lost: a reliable publisher only delivers to subscriptions it has already matched, and the
+        nodes' own links (tracker to scheduler, scheduler to buffer, ...) match on their own time.
+        """
+        image_publishers = []
+        for topic, msgtype in bag_topics(self.args.bag).items():
+            try:
+                publisher = self._publisher(topic, msgtype)
+            except ValueError as error:
+                self.get_logger().warning(f"not replaying topic {topic}: {error}")
+                continue
+            if msgtype in IMAGE_TYPES_SET:
+                image_publishers.append(publisher)
+        deadline = time.monotonic() + timeout_s
+        while image_publishers and not stop.is_set() and time.monotonic() < deadline:
+            if any(p.get_subscription_count() > 0 for p in image_publishers):
+                break
+            time.sleep(0.05)
+        else:
+            if image_publishers and not stop.is_set():
+                self.get_logger().warning(f"no subscriber matched the bag's image topic after {timeout_s:.0f} s")
+            return
+        self.wait_until_linked(list(NODES), stop, max(0.0, deadline - time.monotonic()))
+
+    def wait_until_linked(self, node_names: list[str], stop: threading.Event, timeout_s: float) -> bool:
+        """Block until each named node, and this one, has matched every endpoint this process sees
+        on its topics (:mod:`gldt_ros.launcher.graph_links`); on timeout log what is missing and go on."""
+        deadline = time.monotonic() + timeout_s
+        missing: list[str] = []
+        while not stop.is_set():
+            with self._statuses_lock:
+                statuses = dict(self._statuses)
+            reports = {name: counts for name, status in statuses.items() if (counts := parse_link_counts(status))}
+            silent = reporting_nodes_missing(node_names, reports)
+            reports[self.get_name()] = own_link_counts(self)
+            missing = [f"{name}: no link report yet" for name in silent] + missing_links(self, reports)
+            if not missing:
+                self.get_logger().info(
+                    f"every graph link matched after {timeout_s - (deadline - time.monotonic()):.2f} s"
+                )
+                return True
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(0.02)
+        if missing:
+            self.get_logger().warning(f"graph links not all matched after {timeout_s:.1f} s: {'; '.join(missing)}")
+        return False
+
+    def replay(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str:
+        """Play the bag; return a one-line summary."""
+        self._prepare_publishers(stop)
+        frames = 0
+        skipped_topics: set[str] = set()
+        waited_out = 0
+        start_wall = time.monotonic()
+        first_log_ns: int | None = None
+        last_stamp: int | None = None
+        try:
+            for message in iter_bag(self.args.bag):
+                if stop.is_set():
+                    break
+                try:
+                    publisher = self._publisher(message.topic, message.msgtype)
+                except ValueError as error:
+                    if message.topic not in skipped_topics:
+                        skipped_topics.add(message.topic)
+                        self.get_logger().warning(f"not replaying topic {message.topic}: {error}")
+                    continue
+                if not self.args.lockstep:
+                    first_log_ns = message.log_time_ns if first_log_ns is None else first_log_ns
+                    due = start_wall + (message.log_time_ns - first_log_ns) / 1e9 / self.args.rate
+                    delay = due - time.monotonic()
+                    if delay > 0:
+                        stop.wait(delay)
+                if message.msgtype in IMAGE_TYPES_SET:
+                    last_stamp = header_stamp_ns(message.data)
+                    relinked = self._relink_after_restarts(stop, dead) if self.args.lockstep else None
+                    if relinked is not None:
+                        print(f"pipeline: {relinked}; next frame stamped {last_stamp}", flush=True)
+                    self.note_published(last_stamp)
+                publisher.publish(message.data)
+                if message.msgtype in IMAGE_TYPES_SET:
+                    frames += 1
+                    if self.args.lockstep and not self._wait_answer(last_stamp, stop, dead):
+                        waited_out += 1
+        except ValueError as error:
+            self.get_logger().error(str(error))
+        if not self.args.lockstep:
+            self.drain(frames, stop)
+        elif last_stamp is not None:
+            self.wait_until_recorded(last_stamp, stop)
+        elapsed = time.monotonic() - start_wall
+        self.frames_published = frames
+        latency = ""
+        if self.latencies_s:
+            import numpy as np
+
+            p50, p99 = np.percentile(np.asarray(self.latencies_s) * 1000.0, [50, 99])
+            latency = f", camera-to-tracks latency p50 {p50:.0f} ms p99 {p99:.0f} ms"
+        return (
+            f"pipeline: replayed {frames} frames in {elapsed:.1f} s ({frames / max(elapsed, 1e-9):.1f} fps), "
+            f"{self.tracks_received} track messages, {waited_out} frames without an answer{latency}"
+        )
+
+    def _wait_answer(self, stamp_ns: int, stop: threading.Event, dead: Callable[[], list[str]]) -> bool:
+        deadline = time.monotonic() + self.args.frame_timeout
+        with self._answered_cv:
+            while stamp_ns not in self._answered:
+                if self._restarted:
+                    self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns: a node was restarted")
+                    return False
+                if stop.is_set() or time.monotonic() > deadline or dead():
+                    self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns; going on")
+                    return False
+                self._answered_cv.wait(0.05)
+            self._answered.discard(stamp_ns)
+        return True
+
+    def wait_until_recorded(self, stamp_ns: int, stop: threading.Event, timeout_s: float = 2.0) -> bool:
+        """Wait until every recorded topic has delivered a message stamped ``stamp_ns`` or later.
+
+        The last frame's tracks can reach this node before its detections and scheduler state do:
+        they come from other writers, on other topics, and the executor serves them on other
+        threads. Closing the recording at the tracks would then lose the last frame's other
+        outputs. False after ``timeout_s`` (a frame given up after a restart has none to wait for).
+        """
+        if self.recorder is None:
+            return True
+        deadline = time.monotonic() + timeout_s
+        with self._answered_cv:
+            while any(self._newest_recorded.get(topic, -1) < stamp_ns for topic in RECORDED_TOPICS):
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or stop.is_set():
+                    return False
+                self._answered_cv.wait(min(remaining, 0.05))
+        return True
+
+    def note_published(self, stamp_ns: int) -> None:
+        """Remember when the camera frame stamped ``stamp_ns`` went out, for its camera-to-tracks
+        latency; at most 1000 are kept (frames the graph skipped are forgotten, oldest first)."""
+        with self._answered_cv:
+            self._published_at[stamp_ns] = time.monotonic()
+            if len(self._published_at) > 1000:
+                del self._published_at[next(iter(self._published_at))]
+
+    def drain(self, frames: int, stop: threading.Event, quiet_s: float = 1.0, limit_s: float | None = None) -> None:
+        """After a paced replay, wait until the graph has answered ``frames`` frames or gone quiet
+        for ``quiet_s`` (and at most ``limit_s`` when given)."""
+        deadline = None if limit_s is None else time.monotonic() + limit_s
+        last = -1
+        while not stop.is_set() and self.tracks_received < frames and self.tracks_received != last:
+            if deadline is not None and time.monotonic() >= deadline:
+                break
+            last = self.tracks_received
+            stop.wait(quiet_s)
+
+    def close(self) -> None:
+        if self.recorder is not None:
+            self.recorder.close()

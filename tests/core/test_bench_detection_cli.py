@@ -1,0 +1,50 @@
+"""`gldt bench detection`: a small run writes its report, and the global input size can be set."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from gldt_core.cli import main
+
+
+def test_a_small_run_at_a_larger_global_input_writes_its_report(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(
+        [
+            "bench",
+            "detection",
+            "--real-root",
+            str(tmp_path / "no-clips"),
+            "--synthetic-scenes",
+            "1",
+            "--synthetic-frames",
+            "4",
+            "--long-side",
+            "1280",
+            "--latency-runs",
+            "1",
+            "--latency-threads",
+            "1",
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
+    assert code == 0
+    out = capsys.readouterr().out
+    assert "skipping the real-data rows" in out
+    assert "global input 1280x768" in out, "--long-side must reach the global models"
+    report = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert set(report["datasets"]["synthetic-test"]) == {"AM-YOLO", "no-STFF", "local"}
+    assert (tmp_path / "out" / "pr_synthetic-test.png").is_file()
+
+
+def test_cards_are_not_updated_from_a_run_at_another_input_size(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    code = main(["bench", "detection", "--long-side", "1280", "--update-cards", "--out", str(tmp_path)])
+    assert code == 2
+    assert "--update-cards" in capsys.readouterr().err

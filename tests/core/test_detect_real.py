@@ -1,0 +1,79 @@
+"""The shipped detectors find real drones in held-out Halmstad clips (never trained on)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector, LocalDetector
+from gldt_core.eval.detection_metrics import box_iou
+from gldt_core.eval.halmstad_split import halmstad_split
+from gldt_core.io.mot import read_mot
+from gldt_core.paths import halmstad_root
+
+ROOT = halmstad_root()
+CLIPS = ("V_DRONE_004", "V_DRONE_064")
+
+pytestmark = pytest.mark.skipif(not (ROOT / "videos").is_dir(), reason=f"needs the real Halmstad clips in {ROOT}")
+
+
+def sampled_frames(clip: str, every: int = 30):
+    """(previous, current, drone gt box) for every ``every``-th frame that has a drone."""
+    gt = read_mot(ROOT / "gt" / f"{clip}.txt")
+    cap = cv2.VideoCapture(str(ROOT / "videos" / f"{clip}.mp4"))
+    previous = None
+    try:
+        for k in range(1, 301):
+            ok, frame = cap.read()
+            if not ok:
+                break
+            rows = gt[(gt[:, 0] == k) & (gt[:, 7] == 1)]
+            if k % every == 0 and len(rows) and previous is not None:
+                x, y, w, h = rows[0, 2:6]
+                yield previous, frame, np.array([[x, y, x + w, y + h]])
+            previous = frame
+    finally:
+        cap.release()
+
+
+def test_clips_used_here_are_held_out() -> None:
+    assert set(CLIPS) <= set(halmstad_split(ROOT)["val"])
+
+
+def test_local_detector_finds_the_drone_in_an_roi_around_it() -> None:
+    detector = LocalDetector(score_threshold=0.25, num_threads=1)
+    hits = extra = total = 0
+    for clip in CLIPS:
+        for _, frame, gt in sampled_frames(clip):
+            cx, cy = (
+                (gt[0, 0] + gt[0, 2]) / 2 + 25,
+                (gt[0, 1] + gt[0, 3]) / 2 - 20,
+            )  # target off-centre, as after a prediction error
+            dets = detector.detect_rois(frame, np.array([[cx - 150, cy - 150, cx + 150, cy + 150]]).round())
+            dets = dets[dets[:, 5] == DRONE_CLASS_ID]
+            total += 1
+            matched = len(dets) > 0 and box_iou(dets[:, :4], gt).max() >= 0.5
+            hits += int(matched)
+            extra += len(dets) - int(matched)
+    assert total == 20
+    assert hits >= 14, f"local detector found {hits}/{total} drones"
+    assert extra <= 2
+
+
+def test_global_detector_finds_drones_in_full_frames() -> None:
+    detector = GlobalDetector(score_threshold=0.25, num_threads=1)
+    hits = extra = total = 0
+    for clip in CLIPS:
+        for previous, frame, gt in sampled_frames(clip):
+            dets = detector.detect(previous, frame)
+            dets = dets[dets[:, 5] == DRONE_CLASS_ID]
+            total += 1
+            matched = len(dets) > 0 and box_iou(dets[:, :4], gt).max() >= 0.5
+            hits += int(matched)
+            extra += len(dets) - int(matched)
+    assert total == 20
+    # The shipped CPU-trained model is far from the paper's numbers (see its model card); this
+    # guards against regressions in the model, export or the runtime mapping, not a target.
+    assert hits >= 10, f"global detector found {hits}/{total} drones"
+    assert extra <= 3

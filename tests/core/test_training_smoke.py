@@ -1,0 +1,141 @@
+"""One real training step of each detector: the loop learns (weights move), logs and checkpoints.
+
+The full runs take tens of minutes (``gldt train``); this catches what breaks them early, such
+as a forward pass left under ``no_grad`` or a checkpoint that does not load back.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch", reason="training is the optional `train` extra")
+
+from gldt_core.training.train import load_checkpoint, spec_for_task, train  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def data_cache(tmp_path_factory) -> Path:
+    """Rendered synthetic scenes, shared by the tests (rendering them is most of the run time)."""
+    return tmp_path_factory.mktemp("train_cache")
+
+
+def tiny_config(task: str, cache_dir: Path) -> dict:
+    """The shipped config's schema, shrunk to seconds: one synthetic scene, two steps."""
+    from gldt_core.training.train import DEFAULTS, _merge
+
+    override = {
+        "threads": 1,
+        "model": {"channels": [4, 8, 8, 16, 16], "depth": 1, "num_classes": 3, "reg_max": 8, "head_levels": [2, 3]},
+        "data": {
+            "cache_dir": str(cache_dir),
+            "use_real": False,
+            "real_validation": False,  # runs without the Halmstad clips beside the checkout
+            "synthetic_val_scenes": 1,
+            "synthetic_scenes": 1,
+            "synthetic_frames": 16,
+            "synthetic_frame_step": 8,
+            "synthetic_scale": 1.0 / 3.0 if task == "global" else 1.0,
+            "val_max_images": 2,
+            "input_size": [96, 64] if task == "global" else [64, 64],
+            "val_size": [128, 96] if task == "global" else [64, 64],
+            "roi": 75,
+            "val_roi": 75,
+        },
+        "train": {"epochs": 1, "batch_size": 2, "steps_per_epoch": 2, "warmup_steps": 1, "lr": 0.01, "ema_decay": 0.0},
+    }
+    if task == "global":
+        override["model"].update({"dual_frame": True, "stff_levels": [2], "stff_windows": [4]})
+    else:
+        override["model"].update({"dual_frame": False, "stff_levels": [], "stff_windows": []})
+    return _merge(DEFAULTS, override)
+
+
+@pytest.mark.parametrize("task", ["global", "local"])
+def test_one_epoch_of_training_moves_the_weights_and_writes_a_loadable_checkpoint(
+    task: str, tmp_path: Path, data_cache: Path
+) -> None:
+    from gldt_core.training.models import Detector
+
+    config = tiny_config(task, data_cache)
+    torch.manual_seed(config["seed"])
+    initial = Detector(spec_for_task(task, config)).state_dict()
+    best = train(task, config, out_dir=tmp_path / "run", progress=False)
+
+    model, checkpoint = load_checkpoint(best)
+    assert checkpoint["task"] == task and checkpoint["epoch"] == 1
+    moved = [
+        name
+        for name, value in model.state_dict().items()
+        if value.dtype.is_floating_point and not torch.equal(value, initial[name])
+    ]
+    assert moved, "no weight changed: the training step did not reach the optimiser"
+    with (tmp_path / "run" / "log.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 1 and math.isfinite(float(rows[0]["loss"])) and float(rows[0]["loss"]) > 0
+    assert (tmp_path / "run" / "curves.png").is_file()
+    h, w = config["data"]["val_size"][1], config["data"]["val_size"][0]
+    image = torch.zeros(1, 3, h, w)
+    with torch.no_grad():
+        out = model(image, image) if task == "global" else model(image)
+    assert np.isfinite(out.numpy()).all()
+
+
+def test_parallel_scene_rendering_caches_the_same_pairs_as_serial(tmp_path: Path) -> None:
+    from gldt_core.training.data import load_synthetic
+
+    serial = load_synthetic("train", 2, 10, 4, 0.25, tmp_path / "serial", workers=0)
+    parallel = load_synthetic("train", 2, 10, 4, 0.25, tmp_path / "parallel", workers=2)
+    assert [(p.source, p.frame) for p in parallel] == [(p.source, p.frame) for p in serial]
+    assert len({p.source for p in serial}) == 2
+    for a, b in zip(serial, parallel):
+        assert a.current == b.current and a.previous == b.previous
+        np.testing.assert_array_equal(a.boxes, b.boxes)
+
+
+def test_wall_clock_budget_ends_the_schedule_after_the_first_step_with_a_checkpoint(
+    tmp_path: Path, data_cache: Path
+) -> None:
+    config = tiny_config("local", data_cache)
+    config["train"].update({"epochs": 3, "steps_per_epoch": 4, "max_wall_s": 1e-6, "loader_workers": 1})
+    best = train("local", config, out_dir=tmp_path / "run", progress=False)
+    _, checkpoint = load_checkpoint(best)
+    with (tmp_path / "run" / "log.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert checkpoint["epoch"] == 1 and len(rows) == 1, "a spent budget must stop the schedule after epoch 1"
+    assert float(rows[0]["lr"]) == pytest.approx(config["train"]["lr"] * 0.05), (
+        "the schedule must have annealed to its floor"
+    )
+
+
+def test_asking_for_cuda_without_one_is_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> None:
+    from gldt_core.training.train import resolve_device
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)  # the same on a machine with a GPU
+    with pytest.raises(ValueError, match="sees no CUDA device"):
+        resolve_device("cuda")
+    assert resolve_device("auto").type == "cpu"
+
+
+def test_without_a_budget_the_learning_rate_follows_warmup_and_cosine_of_the_steps_taken(
+    tmp_path: Path, data_cache: Path
+) -> None:
+    config = tiny_config("local", data_cache)
+    config["train"].update({"epochs": 2, "steps_per_epoch": 2, "warmup_steps": 3})
+    train("local", config, out_dir=tmp_path / "run", progress=False)
+    with (tmp_path / "run" / "log.csv").open() as fh:
+        rates = [float(row["lr"]) for row in csv.DictReader(fh)]
+    total = 4
+
+    def expected(steps: int) -> float:
+        return (
+            config["train"]["lr"]
+            * min(1.0, (steps + 1) / 3)
+            * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * steps / total)))
+        )
+
+    assert rates == pytest.approx([expected(2), expected(4)])

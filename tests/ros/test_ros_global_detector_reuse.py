@@ -1,0 +1,182 @@
+"""global_detector reuses the last pair's features only when the next pair's previous frame is
+that very image, and its boxes equal the full model's either way."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from itertools import islice
+from typing import Any
+
+import numpy as np
+import pytest
+
+rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
+
+from rclpy.context import Context  # noqa: E402
+
+from support import REAL_BAG
+
+
+def bag_pairs(count: int) -> tuple[list, int, int, Callable[..., Any]]:
+    """The real bag's first ``count`` frames letterboxed as frame_pair_buffer does, their full
+    width and height, and ``pair(previous, current, with_previous=True)`` building a FramePair of
+    two of them (``with_previous=False``: sent without the previous image, as the buffer does once
+    the detector answered that frame)."""
+    from gldt_msgs.msg import FramePair
+    from sensor_msgs.msg import Image
+    from std_msgs.msg import Header
+
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.staged import prepare_global_input
+    from gldt_core.io.sources import open_source
+    from gldt_ros.interface.convert import bgr_to_image
+
+    frames = [frame.image for frame in islice(open_source(str(REAL_BAG)), count)]
+    geometry = GlobalDetector(num_threads=1, optimize_graph=False)
+    prepared = [prepare_global_input(geometry, frame) for frame in frames]
+    height, width = frames[0].shape[:2]
+
+    def pair(previous: int, current: int, with_previous: bool = True) -> FramePair:
+        header = Header(frame_id="camera")
+        header.stamp.nanosec = current * 33_333_333
+        letterbox = prepared[current][1]
+        return FramePair(
+            header=header,
+            frame_index=current,
+            previous_frame_index=previous,
+            full_width=width,
+            full_height=height,
+            scale=float(letterbox.scale),
+            pad_x=int(letterbox.pad_x),
+            pad_y=int(letterbox.pad_y),
+            previous=bgr_to_image(prepared[previous][0], header) if with_previous else Image(header=header),
+            current=bgr_to_image(prepared[current][0], header),
+        )
+
+    return prepared, width, height, pair
+
+
+def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> None:
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.staged import detect_global_streamed
+    from gldt_ros.nodes.global_detector import GlobalDetectorNode
+
+    prepared, width, height, pair = bag_pairs(5)
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = GlobalDetectorNode(context=context)
+        reuse = node.detector.feature_reuse
+        assert reuse is not None, "the shipped AM-YOLO comes with its split pair"
+        runs: list[int] = []
+        original = reuse.features
+        reuse.features = lambda blob: (runs.append(1), original(blob))[1]  # type: ignore[method-assign]
+        published: list = []
+        node.publisher.publish = published.append  # type: ignore[method-assign]
+        full = GlobalDetector(
+            num_threads=1,
+            score_threshold=node.detector.score_threshold,
+            classes=node.detector.classes,
+            feature_reuse=False,
+        )
+        # A GD stretch 0-1-2, then a pair whose previous frame (3) was never a current one here
+        # (skipped, or an LD frame), then 3-4 again in a stretch.
+        sequence = [(0, 0), (0, 1), (1, 2), (3, 4)]
+        for previous, current in sequence:
+            node.on_pair(pair(previous, current))
+        assert len(runs) == 2  # the first pair and the one after the gap
+        for (previous, current), message in zip(sequence, published):
+            expected, _ = detect_global_streamed(
+                full, prepared[previous][0], prepared[current][0], prepared[current][1], width, height
+            )
+            boxes = np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections])
+            centres = np.c_[(expected[:, 0] + expected[:, 2]) / 2, (expected[:, 1] + expected[:, 3]) / 2]
+            sizes = np.c_[expected[:, 2] - expected[:, 0], expected[:, 3] - expected[:, 1]]
+            assert len(boxes) == len(expected) > 0
+            np.testing.assert_allclose(boxes, np.c_[centres, sizes, expected[:, 4]], atol=1e-4)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_frame_itself() -> None:
+    """frame_pair_buffer leaves the previous image out once this node answered that frame: the
+    boxes must be those of the full pair. A node that does not hold the frame (restarted) pairs
+    the current frame with itself and says so, instead of failing on the empty image."""
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.staged import detect_global_streamed
+    from gldt_ros.nodes.global_detector import GlobalDetectorNode
+
+    prepared, width, height, pair = bag_pairs(3)
+
+    def boxes(message) -> np.ndarray:
+        return np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections]).reshape(
+            -1, 5
+        )
+
+    def expected(previous: int, current: int) -> np.ndarray:
+        rows, _ = detect_global_streamed(
+            full, prepared[previous][0], prepared[current][0], prepared[current][1], width, height
+        )
+        return np.c_[
+            (rows[:, 0] + rows[:, 2]) / 2,
+            (rows[:, 1] + rows[:, 3]) / 2,
+            rows[:, 2] - rows[:, 0],
+            rows[:, 3] - rows[:, 1],
+            rows[:, 4],
+        ]
+
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = GlobalDetectorNode(context=context)
+        published: list = []
+        node.publisher.publish = published.append  # type: ignore[method-assign]
+        warnings: list[str] = []
+        node.warn_throttled = lambda key, text: warnings.append(text)  # type: ignore[method-assign]
+        full = GlobalDetector(
+            num_threads=1,
+            score_threshold=node.detector.score_threshold,
+            classes=node.detector.classes,
+            feature_reuse=False,
+        )
+        node.on_pair(pair(0, 1, with_previous=True))
+        node.on_pair(pair(1, 2, with_previous=False))  # frame 1 is held here
+        assert not warnings
+        np.testing.assert_allclose(boxes(published[-1]), expected(1, 2), atol=1e-4)
+        assert len(published[-1].detections) > 0
+
+        node.on_pair(pair(0, 1, with_previous=False))  # asks for frame 0; this node holds frame 2
+        assert len(warnings) == 1 and "without its previous frame 0" in warnings[0] and "itself" in warnings[0]
+        np.testing.assert_allclose(boxes(published[-1]), expected(1, 1), atol=1e-4)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def test_the_node_warms_the_model_up_before_it_is_ready_and_keeps_nothing_of_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Blank pairs at a 1080p camera's input size, the second reusing the first one's features
+    (both sessions of the split pair run); none of it may pass for a real previous frame."""
+    import gldt_ros.nodes.global_detector as module
+
+    calls: list[tuple[tuple[int, ...], bool]] = []
+    original = module.detect_global_streamed
+
+    def counting(detector, previous, current, mapping, width, height, previous_features=None):
+        calls.append((current.shape, previous_features is not None))
+        return original(detector, previous, current, mapping, width, height, previous_features)
+
+    monkeypatch.setattr(module, "detect_global_streamed", counting)
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = module.GlobalDetectorNode(context=context)
+        width, height = node.detector.input_size(1920, 1080)
+        assert calls == [((height, width, 3), False)] + [((height, width, 3), True)] * (module.WARM_UP_RUNS - 1)
+        assert node.last_pair is None and node.last_pair_index is None
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

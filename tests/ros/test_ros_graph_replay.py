@@ -1,0 +1,163 @@
+"""The ROS graph replays each sample bag in lockstep into exactly the offline pipeline's tracks.
+
+This is the contract that lets everything be developed and measured offline: the five nodes,
+each in its own process, exchanging gldt_msgs over DDS, must give the same identities and boxes
+(within 1e-4 px) as ``GLDTSystem`` run in one process on the same bag - the code path of
+``gldt run --bag``. The tracks must also meet a MOTA floor against the bag's ground truth.
+"""
+
+from __future__ import annotations
+
+import functools
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from support import REPO_ROOT, isolated_ros_env
+
+pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
+
+REPO = REPO_ROOT
+PIPELINE = REPO / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
+BAGS = sorted(path for path in (REPO / "bags").iterdir() if (path / "metadata.yaml").is_file())
+
+#: Lowest MOTA (drones only) a sample bag's tracks must reach (measured on the real clip: 0.97
+#: with the score thresholds chosen by `gldt bench thresholds`, 0.93 with the earlier ones).
+#: The synthetic 1080p bag has none: the shipped global detector, trained briefly on CPU, does not
+#: find its 5-14 px targets yet (README, "Results"), so there it checks equivalence only.
+MOTA_FLOOR = {"halmstad_v_drone_001": 0.90}
+
+
+@functools.cache
+def offline_run(bag: Path) -> tuple[np.ndarray, np.ndarray, dict[int, np.ndarray]]:
+    """What `gldt run --bag` computes, at full precision: tracks, ground truth, detections per frame."""
+    from gldt_core.io.sources import open_source
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import GLDTSystem
+    from gldt_core.system.runner import run_frames
+
+    pipeline = GLDTSystem(load_config(None))
+    detections: dict[int, np.ndarray] = {}
+
+    def keep_detections(frame, _tracks) -> None:
+        detections[int(frame.index)] = pipeline.state.detections.copy()
+
+    result = run_frames(pipeline, open_source(str(bag)), on_frame=keep_detections, collect_ground_truth=True)
+    return result.rows, result.ground_truth, detections
+
+
+def offline_rows(bag: Path) -> tuple[np.ndarray, np.ndarray]:
+    rows, ground_truth, _ = offline_run(bag)
+    return rows, ground_truth
+
+
+#: (bag, nodes in one process?): every bag through five processes, and the real bag through the
+#: five nodes in `pipeline`'s own process (`--in-process`), which must give the same tracks.
+REPLAYS = [(bag, False) for bag in BAGS] + [(bag, True) for bag in BAGS if bag.name in MOTA_FLOOR]
+
+
+@pytest.fixture(scope="module", params=REPLAYS, ids=[bag.name + ("-in-process" if one else "") for bag, one in REPLAYS])
+def replay(request, tmp_path_factory):
+    bag, in_process = request.param
+    record = tmp_path_factory.mktemp(bag.name) / "graph.mcap"
+    completed = subprocess.run(
+        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--record", str(record)]
+        + (["--in-process"] if in_process else []),
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=isolated_ros_env(),
+    )
+    assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
+    from gldt_core.io.recording import iter_recorded, recorded_track_rows
+
+    detections = {
+        int(message.frame_index): np.array(
+            [
+                (
+                    d.center_x - d.width / 2,
+                    d.center_y - d.height / 2,
+                    d.center_x + d.width / 2,
+                    d.center_y + d.height / 2,
+                    d.score,
+                )
+                for d in message.detections
+            ]
+        ).reshape(-1, 5)
+        for _, message, _ in iter_recorded(record, "gldt/detections")
+    }
+    return bag, recorded_track_rows(record), completed.stdout, detections
+
+
+def test_every_frame_is_answered(replay) -> None:
+    bag, rows, stdout, _ = replay
+    assert "0 frames without an answer" in stdout, stdout
+
+
+def test_graph_detections_equal_offline_detections(replay) -> None:
+    """Every frame's detections (after class filter and ROI merging) match, in GD and LD alike."""
+    bag, _, _, graph = replay
+    _, _, offline = offline_run(bag)
+    assert sorted(graph) == sorted(offline), "the graph detected on other frames than the offline run"
+    if bag.name in MOTA_FLOOR:
+        assert sum(len(d) for d in offline.values()) > 0, "no detections at all: nothing was compared"
+    for index, expected in offline.items():
+        got = graph[index]
+        assert got.shape == expected.shape, (
+            f"frame {index}: {len(got)} detections in the graph, {len(expected)} offline"
+        )
+        order_got, order_expected = np.lexsort(got.T[::-1]), np.lexsort(expected.T[::-1])
+        np.testing.assert_allclose(got[order_got], expected[order_expected], atol=1e-4, err_msg=f"frame {index}")
+
+
+def test_lockstep_replay_equals_offline_run(replay) -> None:
+    bag, graph, _, _ = replay
+    offline, _ = offline_rows(bag)
+    if bag.name in MOTA_FLOOR:
+        assert len(offline) > 0, "the offline run produced no tracks at all; nothing to compare"
+    order_graph = np.lexsort((graph[:, 1], graph[:, 0]))
+    order_offline = np.lexsort((offline[:, 1], offline[:, 0]))
+    graph, offline = graph[order_graph], offline[order_offline]
+    assert graph.shape == offline.shape, f"graph gave {len(graph)} track rows, offline {len(offline)}"
+    np.testing.assert_array_equal(graph[:, :2], offline[:, :2], err_msg="frames/ids differ")
+    np.testing.assert_allclose(graph[:, 2:6], offline[:, 2:6], atol=1e-4, rtol=0, err_msg="boxes differ")
+    np.testing.assert_allclose(graph[:, 6], offline[:, 6], atol=1e-6, err_msg="scores differ")
+
+
+def test_graph_tracks_meet_the_mota_floor(replay) -> None:
+    from gldt_core.eval.mot_metrics import evaluate_sequence
+
+    bag, graph, _, _ = replay
+    if bag.name not in MOTA_FLOOR:
+        return  # equivalence only, see MOTA_FLOOR
+    _, ground_truth = offline_rows(bag)
+    drones = ground_truth[ground_truth[:, 7] == 1]
+    metrics = evaluate_sequence(drones, graph)
+    assert metrics["MOTA"] >= MOTA_FLOOR[bag.name], f"{bag.name}: MOTA {metrics['MOTA']:.3f}"
+
+
+def test_a_namespaced_graph_serves_its_own_camera(tmp_path: Path) -> None:
+    """`--namespace cam_a` moves camera input and outputs under /cam_a: one graph per camera."""
+    from gldt_core.io.recording import iter_recorded, recorded_track_rows
+
+    bag = REPO / "bags" / "halmstad_v_drone_001"
+    record = tmp_path / "cam_a.mcap"
+    completed = subprocess.run(
+        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--namespace", "cam_a", "--record", str(record)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=isolated_ros_env(),
+    )
+    assert completed.returncode == 0, completed.stdout[-3000:] + completed.stderr[-3000:]
+    assert "0 frames without an answer" in completed.stdout, completed.stdout[-3000:] + completed.stderr[-3000:]
+    topics = {topic for topic, _, _ in iter_recorded(record, "")}
+    assert "/cam_a/gldt/tracks" in topics and not any(t.startswith("/gldt") for t in topics), topics
+    graph = recorded_track_rows(record)
+    offline, _ = offline_rows(bag)
+    assert graph.shape == offline.shape and len(graph) > 0
+    np.testing.assert_array_equal(
+        graph[np.lexsort((graph[:, 1], graph[:, 0]))][:, :2], offline[np.lexsort((offline[:, 1], offline[:, 0]))][:, :2]
+    )
