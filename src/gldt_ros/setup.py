@@ -1,18 +1,38 @@
 """ament_python package ``gldt_ros``: executables land in ``lib/gldt_ros`` for ``ros2 run``."""
 
-from glob import glob
+import importlib.util
+from pathlib import Path
 
 from setuptools import find_packages, setup
 
 PACKAGE = "gldt_ros"
+HERE = Path(__file__).resolve().parent
 
-#: One executable per node, plus the graph runner and the example planner-side subscriber.
+
+def graph_nodes() -> dict[str, str]:
+    """The graph's nodes (name -> module) from ``gldt_ros/interface/graph.py``, loaded by its path:
+    at build time neither rclpy nor the package itself can be imported."""
+    spec = importlib.util.spec_from_file_location("gldt_ros_graph", HERE / PACKAGE / "interface" / "graph.py")
+    if spec is None or spec.loader is None:
+        raise RuntimeError(f"cannot load {PACKAGE}/interface/graph.py from {HERE}")
+    graph = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(graph)
+    return dict(graph.NODES)
+
+
+def shipped_files(folder: str, *patterns: str) -> list[str]:
+    """The files in ``folder`` that match ``patterns``, relative to this file as setuptools takes
+    them; none is a packaging error (the graph cannot start without its configuration)."""
+    files = sorted({str(path.relative_to(HERE)) for pattern in patterns for path in (HERE / folder).glob(pattern)})
+    if not files:
+        raise RuntimeError(f"no {' or '.join(patterns)} files in {HERE / folder}")
+    return files
+
+
+#: One executable per graph node, plus the ``pipeline`` command that starts the graph and the
+#: example planner-side subscriber.
 EXECUTABLES = {
-    "frame_pair_buffer": "gldt_ros.nodes.frame_pair_buffer:main",
-    "global_detector": "gldt_ros.nodes.global_detector:main",
-    "local_detector": "gldt_ros.nodes.local_detector:main",
-    "mode_scheduler": "gldt_ros.nodes.mode_scheduler:main",
-    "jptrack_tracker": "gldt_ros.nodes.jptrack_tracker:main",
+    **{name: f"{module}:main" for name, module in graph_nodes().items()},
     "threat_monitor": "gldt_ros.examples.threat_monitor:main",
     "pipeline": "gldt_ros.launcher.pipeline:main",
 }
@@ -24,8 +44,8 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")),
-        (f"share/{PACKAGE}/launch", glob("launch/*.py")),
+        (f"share/{PACKAGE}/config", shipped_files("config", "*.yaml", "*.xml")),
+        (f"share/{PACKAGE}/launch", shipped_files("launch", "*.py")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -8,7 +8,7 @@ import pytest
 
 from gldt_core.bench.latency import interleaved_medians
 from gldt_core.cli import main
-from gldt_core.detect.runtime import shipped_model_path
+from gldt_core.detect import shipped_model_path
 
 
 def test_rounds_interleave_every_call_and_medians_follow_the_work() -> None:

@@ -11,14 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from gldt_core.detect import DetectorConfigError, GlobalDetector, shipped_model_path
+from gldt_core.detect import DetectorConfigError, GlobalCarry, GlobalDetector, shipped_model_path
 from gldt_core.detect.feature_reuse import features_path, reuse_path
-from gldt_core.detect.staged import GlobalCarry, detect_global_streamed, prepare_global_input
 from support import REPO_ROOT
 
-REPO = REPO_ROOT
-REAL_BAG = REPO / "bags" / "halmstad_v_drone_001"
-SYNTHETIC_BAG = REPO / "bags" / "synth_1080p_multi_uav"
+REAL_BAG = REPO_ROOT / "bags" / "halmstad_v_drone_001"
+SYNTHETIC_BAG = REPO_ROOT / "bags" / "synth_1080p_multi_uav"
 
 
 def bag_frames(bag: Path, count: int) -> list[np.ndarray]:
@@ -73,10 +71,10 @@ def test_a_gd_stretch_with_reused_features_gives_the_full_models_boxes(detectors
 def test_features_of_another_frame_size_are_recomputed_not_fed(detectors) -> None:
     reusing, full = detectors
     frame = bag_frames(REAL_BAG, 1)[0]
-    current_input, mapping = prepare_global_input(reusing, frame)
+    current_input, mapping = reusing.prepare(frame)
     wrong = np.zeros((1, 16, 8, 8), np.float32)
-    boxes, features = detect_global_streamed(
-        reusing, current_input, current_input, mapping, frame.shape[1], frame.shape[0], wrong
+    boxes, features = reusing.detect_prepared(
+        current_input, current_input, mapping, frame.shape[1], frame.shape[0], wrong
     )
     np.testing.assert_array_equal(boxes, full.detect(frame, frame))
     assert features is not None and features.shape == (1, 16, current_input.shape[0] // 4, current_input.shape[1] // 4)

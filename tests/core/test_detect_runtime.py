@@ -176,7 +176,7 @@ def test_unusable_models_raise_config_errors(tmp_path: Path) -> None:
 
 def test_detect_pair_reuses_the_previous_input_with_identical_boxes(global_detector: GlobalDetector) -> None:
     """A stream that hands back the carry (letterboxed input, features) gets exactly what detect() computes."""
-    from gldt_core.detect.staged import GlobalCarry
+    from gldt_core.detect import GlobalCarry
 
     frames = [textured_frame(960, 540, seed) for seed in range(3)]
     first, first_carry = global_detector.detect_pair(None, frames[0])

@@ -13,7 +13,7 @@ import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper
 
-from gldt_core.detect.runtime import MODELS_DIR
+from gldt_core.detect.shipped import MODELS_DIR
 from gldt_core.export import window_rewrite
 from gldt_core.export.window_rewrite import PARTITION_PERM, REVERSE_PERM, rewrite_model_file, rewrite_window_transposes
 

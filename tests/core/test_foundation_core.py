@@ -9,8 +9,6 @@ from pathlib import Path
 
 from support import CORE_SRC
 
-SRC = CORE_SRC
-
 # Packages allowed to import torch: training and export only, never imported by the runtime.
 TORCH_PACKAGES = ("gldt_core.training", "gldt_core.export.onnx_export")
 
@@ -53,7 +51,7 @@ print(len(names), ','.join(bad))
 
 
 def test_gldt_help_lists_every_subcommand_module() -> None:
-    expected = sorted(path.stem for path in (SRC / "cli").glob("*.py") if not path.stem.startswith("_"))
+    expected = sorted(path.stem for path in (CORE_SRC / "cli").glob("*.py") if not path.stem.startswith("_"))
     result = subprocess.run([sys.executable, "-m", "gldt_core", "--help"], capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
     for command in expected:

@@ -9,8 +9,7 @@ from pathlib import Path
 
 from support import REPO_ROOT
 
-REPO = REPO_ROOT
-SETUP = REPO / "scripts" / "setup.sh"
+SETUP = REPO_ROOT / "scripts" / "setup.sh"
 
 
 def _run_setup(env_changes: dict[str, str], tmp_path: Path) -> subprocess.CompletedProcess[str]:
@@ -20,7 +19,7 @@ def _run_setup(env_changes: dict[str, str], tmp_path: Path) -> subprocess.Comple
 
 
 def _stamp_snapshot() -> dict[str, str]:
-    stamps = REPO / ".setup-stamps"
+    stamps = REPO_ROOT / ".setup-stamps"
     return {p.name: p.read_text() for p in stamps.glob("*")} if stamps.is_dir() else {}
 
 

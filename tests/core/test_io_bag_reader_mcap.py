@@ -1,8 +1,9 @@
-"""The bag reader's own MCAP walk: compressed chunks, chunk CRCs, frames that lose their ground truth.
+"""BagSource over the MCAP walk (gldt_core.io.mcap_file): compressed chunks, chunk CRCs, frames
+that lose their ground truth.
 
 Bags here are written with the ``mcap`` library (not with :func:`gldt_core.io.bag.write_bag`),
 so the reader is checked against an independent writer, with every chunk option it offers. The
-fault-injection contract itself (truncation, garbage, bad frames) is tests/test_faults_bags.py.
+fault-injection contract itself (truncation, garbage, bad frames) is tests/faults/test_faults_bags.py.
 """
 
 from __future__ import annotations

@@ -4,8 +4,8 @@ drones of a MOT-FLY-like test scene, and local detection adds MOTA over the glob
 
 Runs the ablation's own code (all four variants, interleaved) on one 150-frame test scene, about
 25 s on two cores. The results are deterministic for a given onnxruntime build; the margins
-asserted are well inside what the run gives (README: GD+LD+JPTrack 31.1 vs GD+JPTrack 18.2 MOTA,
-GD on 20 % of the frames), so float differences between CPUs do not decide them.
+asserted are well inside what the run gives (docs/experiment-log.md, "the balanced detector pair"),
+so float differences between CPUs do not decide them.
 """
 
 from __future__ import annotations

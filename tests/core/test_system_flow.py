@@ -231,7 +231,7 @@ def test_frame_size_change_reinitialises_and_warns(caplog):
     scene = Scene([[300, 200]], [[1, 1]], frame_size=(640, 512))
     pipeline, gd, _, tracker = make_pipeline(scene, n_global=3)
     run(pipeline, range(10), size=(1920, 1080))
-    with caplog.at_level(logging.WARNING, logger="gldt.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="gldt.system"):
         modes, outputs = run(pipeline, range(10, 30), size=(640, 512))
     assert any("frame size changed from 1920x1080 to 640x512" in r.getMessage() for r in caplog.records)
     state = pipeline.state
@@ -246,7 +246,7 @@ def test_time_going_backwards_reinitialises(caplog):
     scene = Scene([[300, 500]], [[1, 0]])
     pipeline, _, _, _ = make_pipeline(scene, n_global=3)
     run(pipeline, range(5))
-    with caplog.at_level(logging.WARNING, logger="gldt.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="gldt.system"):
         pipeline.process(stamp_frame(5), 0.0)
     assert pipeline.state.reinitialisations == 1
     assert any("time did not advance (0.133 s -> 0.000 s)" in r.getMessage() for r in caplog.records)
@@ -342,7 +342,7 @@ def test_interleaved_runs_give_each_pipeline_what_a_run_of_its_own_gives():
         # Each frame is decoded once, and that time is booked to every pipeline.
         assert pipeline.timer.calls["decode"] == 60 and shared.seconds > 0
     assert together[0].global_share == pytest.approx(20 / 60) and together[1].global_share == 1.0
-    with pytest.raises(ValueError, match="2 on_frame callbacks for 1 pipelines"):
+    with pytest.raises(ValueError, match="2 on_frame callbacks for 1 systems"):
         run_frames_interleaved(pipelines()[:1], frames(), on_frame=callbacks)
 
 

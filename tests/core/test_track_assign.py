@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from gldt_core.track import ByteTrack, JPTrack
-from gldt_core.track.base import assign
+from gldt_core.track.assignment import assign
 
 
 def total_cost(pairs: list[tuple[int, int]], cost: np.ndarray, limit: float) -> float:

@@ -112,8 +112,8 @@ def test_reset_forgets_the_chains() -> None:
     assert len(tracker.update(stream[2], 2 / 30)) == 0, "a chain from before reset() must not count"
 
 
-def test_the_pipeline_config_passes_the_rule_to_its_tracker(tmp_path) -> None:
-    """`tracker.jptrack.low_score_birth_frames` in a pipeline YAML reaches the tracker; the
+def test_the_system_config_passes_the_rule_to_its_tracker(tmp_path) -> None:
+    """`tracker.jptrack.low_score_birth_frames` in a GL-DT system YAML reaches the tracker; the
     shipped configuration leaves the rule off (measured worse with the shipped detectors)."""
     from gldt_core.system.config import load_config
     from gldt_core.system.gldt_system import build_tracker

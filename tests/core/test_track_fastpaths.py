@@ -1,8 +1,9 @@
-"""The batched/vectorised fast paths give what the straightforward per-item code gives.
+"""The batched and vectorised implementations give what the straightforward per-item code gives.
 
-Each test keeps the simple reference formula (the code before it was vectorised) and compares:
-exact equality where the fast path does the same IEEE operations, a 1e-12 tolerance where the
-summation order may differ.
+Each test keeps a simple reference formula (matrices written out, one item at a time) and
+compares: exact equality where the batched code does the same IEEE operations, a 1e-12 tolerance
+where the summation order may differ. (That each formula gives the same numbers on Python floats as
+on arrays is tests/core/test_track_small_pools.py.)
 """
 
 from __future__ import annotations
@@ -172,3 +173,30 @@ def test_iou_pairs_above_equals_thresholding_the_iou_matrix(n_a: int, n_b: int) 
     for thresh in (0.0, 0.5, 0.85, float(iou[1, 1]), float(np.sort(iou.ravel())[-3])):
         expected = [(int(i), int(j)) for i, j in zip(*np.nonzero(iou > thresh))]
         assert iou_pairs_above(a, b, thresh) == expected
+
+
+def test_tracker_prediction_is_each_tracks_own_prediction() -> None:
+    """``tracker.predict(t)`` predicts every shown track in one batch: exactly each track's
+    ``predicted_xyxy(t)``, and the filters do not move."""
+    from gldt_core.eval.streams import StreamParams, detections_from_gt
+    from gldt_core.sim import scene_ground_truth
+    from gldt_core.track import JPTrack
+    from gldt_core.track.runner import track_detection_rows
+
+    gt = scene_ground_truth(5006, 40, targets=4)
+    tracker = JPTrack()
+    track_detection_rows(tracker, detections_from_gt(gt, 6, (1920, 1080), StreamParams()), 30.0, num_frames=40)
+    before = [tr.kf.mean.copy() for tr in tracker.tracks]
+    for t in (40 / 30, 41 / 30, 39 / 30 + 0.7, 39 / 30 - 0.1):
+        rows = tracker.predict(t)
+        window = tracker.config.lost_window_s + 1e-9
+        shown = [
+            tr
+            for tr in tracker.tracks
+            if tr.is_active or (tr.state is TrackState.LOST and t - tr.last_update_t <= window)
+        ]
+        assert len(shown) > 0 and rows.shape == (len(shown), 5)
+        expected = np.array([[*tr.predicted_xyxy(t), float(tr.track_id)] for tr in shown])
+        np.testing.assert_array_equal(rows, expected)
+    for tr, mean in zip(tracker.tracks, before):
+        np.testing.assert_array_equal(tr.kf.mean, mean)

@@ -12,7 +12,7 @@ def motion_for(pred_boxes: np.ndarray, v_avg: np.ndarray | None = None, has_moti
     n = len(pred_boxes)
     centres = (pred_boxes[:, :2] + pred_boxes[:, 2:]) / 2
     v = np.zeros((n, 2)) if v_avg is None else np.asarray(v_avg, dtype=float)
-    return TrackMotion(
+    return TrackMotion.from_fields(
         pred_xyxy=pred_boxes,
         last_obs_c=centres - v,
         elapsed_ref=np.ones(n),
@@ -111,3 +111,25 @@ def test_full_cost_is_the_weighted_sum_of_table_one() -> None:
         parts.append(jcma_cost(motion, dets, centres, index, single)[0])
     total, _ = jcma_cost(motion, dets, centres, index, JcmaWeights())
     np.testing.assert_allclose(total, 0.3 * parts[0] + 0.3 * parts[1] + 0.2 * parts[2] + 0.2 * parts[3])
+
+
+def test_the_default_context_is_the_pool_itself() -> None:
+    """No context given: the objects of eq. 15 are the pool's tracks at their predicted centres,
+    each track leaving itself out."""
+    rng = np.random.default_rng(3)
+    for n in (3, 7):  # one pool costed on Python floats, one on arrays
+        tracks = np.column_stack([rng.uniform(0, 200, (n, 2)), np.zeros((n, 2))])
+        tracks[:, 2:] = tracks[:, :2] + rng.uniform(8, 30, (n, 2))
+        dets = tracks[rng.integers(0, n, n)] + rng.normal(0, 3, (n, 4))
+        motion = motion_for(tracks, rng.normal(0, 3, (n, 2)), has_motion=True)
+        centres = (tracks[:, :2] + tracks[:, 2:]) / 2
+        default = jcma_cost(motion, dets, None, None, JcmaWeights())
+        explicit = jcma_cost(motion, dets, centres, np.arange(n), JcmaWeights())
+        np.testing.assert_array_equal(default[0], explicit[0])
+        np.testing.assert_array_equal(default[1], explicit[1])
+
+
+def test_context_and_its_index_come_together() -> None:
+    motion = motion_for(np.array([[0.0, 0.0, 10.0, 10.0]]))
+    with pytest.raises(ValueError, match="both"):
+        jcma_cost(motion, np.array([[0.0, 0.0, 10.0, 10.0]]), np.zeros((1, 2)), None, JcmaWeights())

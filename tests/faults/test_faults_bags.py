@@ -8,9 +8,8 @@ here (issue 9) for a damaged bag read through :func:`gldt_core.io.sources.open_s
   raised, or the damaged part is skipped with one warning naming the file;
 * never another exception type (a traceback instead of one line), never a silent loss.
 
-Tests marked ``xfail(strict=True)`` document behaviour that is wrong today in a module this
-suite does not own (``src/gldt_core/io/bag.py``); each reason says what happens instead. Strict
-means the marker must go once the owner fixes it.
+The MCAP walk that finds the damage is :func:`gldt_core.io.mcap_file.read_mcap`; how frames,
+ground truth and errors follow from it is :class:`gldt_core.io.bag.BagSource`.
 """
 
 from __future__ import annotations
@@ -394,7 +393,7 @@ def test_resolution_change_mid_bag_reinitialises_the_pipeline_once(
     )
     config = SystemConfig(scheduler=SchedulerConfig(local_enabled=False))
     pipeline = GLDTSystem(config, global_detector=EmptyGlobal())
-    with caplog.at_level(logging.WARNING, logger="gldt.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="gldt.system"):
         result = run_frames(pipeline, open_source(folder))
     assert result.frames == 8
     assert result.reinitialisations == 1

@@ -3,7 +3,7 @@ anything but the documented errors.
 
 Documented behaviour this checks (read from the modules, not assumed):
 
-* trackers (``gldt_core.track.base.MultiStageTracker.update``, ``track.geometry``): any finite
+* trackers (``gldt_core.track.base.MultiStageTracker.update``, ``track.boxes``): any finite
   ``(N, 5)`` array with positive-size boxes and scores in ``[0, 1]`` is accepted; NaN/inf, a
   non-positive size or a score outside ``[0, 1]`` is a ``ValueError`` naming the frame and the
   field; a refused frame changes nothing.

@@ -1,6 +1,6 @@
 """Model faults: a missing, truncated or wrong-shaped ONNX file fails at start with one line.
 
-``gldt_core.detect.runtime`` documents that an unusable model raises
+``gldt_core.detect.session`` documents that an unusable model raises
 :class:`~gldt_core.detect.DetectorConfigError` (a ``ValueError``) at construction, naming the
 file and what was expected, instead of failing on the first frame. The models here are built
 in the test with the ``onnx`` helper API (tiny graphs with the wrappers' input/output layout),
@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from support import REPO_ROOT
+
 onnx = pytest.importorskip("onnx", reason="the onnx package builds the test models (pip install onnx)")
 from onnx import TensorProto, helper  # noqa: E402
 
 from gldt_core.detect import DetectorConfigError, GlobalDetector, LocalDetector  # noqa: E402
-from support import REPO_ROOT
 
-REPO = REPO_ROOT
 OPSET = 13
 
 
@@ -280,7 +280,7 @@ def test_python_m_gldt_core_run_with_a_truncated_model_prints_no_traceback(tmp_p
         capture_output=True,
         text=True,
         timeout=120,
-        cwd=REPO,
+        cwd=REPO_ROOT,
     )
     assert result.returncode == 2, result.stderr
     lines = [line for line in result.stderr.splitlines() if line.strip()]

@@ -1,7 +1,7 @@
 """Time faults: timestamps going backwards or repeating, a 5 s gap, 15 Hz vs 30 Hz, long silences.
 
 What the trackers document (``gldt_core.track.base.MultiStageTracker.update`` and
-``track.geometry.validate_time``): time must strictly increase; a repeated or earlier stamp is a
+``track.boxes.validate_time``): time must strictly increase; a repeated or earlier stamp is a
 ``ValueError`` naming the field ``t``. What the pipeline documents (``GLDTSystem``): time going
 backwards (or not advancing) and a frame-size change re-initialise tracker and scheduler with
 one warning; black or saturated frames are just frames. The tests check those promises plus the
@@ -281,7 +281,7 @@ def test_pipeline_survives_backwards_and_repeated_stamps_with_one_warning_each(
     stamps[40] = stamps[39]  # repeated
     stamps[60] = stamps[59] - 1.0  # backwards by a second
     outputs = []
-    with caplog.at_level(logging.WARNING, logger="gldt.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="gldt.system"):
         for k, t in enumerate(stamps):
             detectors.frame = k
             outputs.append(pipeline.process(image, t))
@@ -303,7 +303,7 @@ def test_pipeline_resolution_change_mid_stream_reinitialises_once_and_keeps_trac
     full = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
     half = np.zeros((SIZE[1] // 2, SIZE[0] // 2, 3), np.uint8)
     rows_after = 0
-    with caplog.at_level(logging.WARNING, logger="gldt.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="gldt.system"):
         for k in range(frames):
             detectors.frame = k
             small = k >= 60
@@ -331,7 +331,7 @@ def test_pipeline_on_black_and_saturated_frames_and_a_long_silence(caplog: pytes
     white = np.full((SIZE[1], SIZE[0], 3), 255, np.uint8)
     table_sizes = []
     modes = []
-    with caplog.at_level(logging.WARNING, logger="gldt.pipeline"):
+    with caplog.at_level(logging.WARNING, logger="gldt.system"):
         for k in range(frames):
             detectors.frame = k
             detectors.silent = 60 <= k < 360

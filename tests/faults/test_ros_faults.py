@@ -8,43 +8,41 @@ readable with every message it received.
 
 from __future__ import annotations
 
+import importlib
 import time
+from functools import partial
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from support import REPO_ROOT, isolated_ros_env
+
 rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
 from rclpy.executors import MultiThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 
-from gldt_ros.launcher.pipeline import NODES  # noqa: E402
+from gldt_ros.interface.graph import NODES  # noqa: E402
 from gldt_ros.runtime.spin import start_spin_thread  # noqa: E402
-from support import REPO_ROOT, isolated_ros_env
 
-REPO = REPO_ROOT
-PIPELINE = REPO / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
+PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 
 
 class InProcessGraph:
-    """The five nodes in this process, plus a probe that publishes camera input and counts tracks."""
+    """The graph's nodes in this process, plus a probe that publishes camera input and counts tracks."""
 
     def __init__(self) -> None:
         from gldt_msgs.msg import TrackArray
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
-        from gldt_ros.nodes import frame_pair_buffer, global_detector, jptrack_tracker, local_detector, mode_scheduler
-
         rclpy.init()
         args = ["--ros-args", "-p", "camera_qos:=reliable"]
-        self.nodes = [
-            m.create_node(cli_args=args)
-            for m in (frame_pair_buffer, mode_scheduler, global_detector, local_detector, jptrack_tracker)
-        ]
-        self.buffer, self.tracker = self.nodes[0], self.nodes[4]
+        by_name = {name: importlib.import_module(module).create_node(cli_args=args) for name, module in NODES.items()}
+        self.nodes = list(by_name.values())
+        self.buffer, self.tracker = by_name["frame_pair_buffer"], by_name["jptrack_tracker"]
         self.probe = rclpy.create_node("fault_probe")
         self.tracks: list = []
         self.probe.create_subscription(TrackArray, "gldt/tracks", self.tracks.append, RELIABLE)
@@ -141,7 +139,7 @@ def test_bad_camera_input_costs_only_that_frame(graph: InProcessGraph) -> None:
     assert graph.buffer.frames_dropped == dropped + len(bad_inputs)
     # The node is still up, and every supported encoding is processed after the bad frames.
     for encoding, payload in (("bgr8", frame), ("rgb8", frame[:, :, ::-1].copy()), ("mono8", frame[:, :, 0].copy())):
-        graph.send_and_wait(lambda: graph.raw.publish(raw_message(payload, encoding, graph.header())), True)
+        graph.send_and_wait(partial(graph.raw.publish, raw_message(payload, encoding, graph.header())), True)
     # A resolution change mid-stream re-initialises and goes on.
     graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(sky(1280, 720), graph.header())), True)
     # NaN camera_info: logged and ignored, bearings stay invalid, tracking goes on.
@@ -168,20 +166,20 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
     The lockstep driver gives up the frame in flight when the supervisor restarts the node, waits
     until the new process is matched on every link, then sends the next frame: that frame must be
     answered, and the recording must hold every track message, in frame order. How many seconds
-    all this takes depends on the machine, so it is measured by ``python -m gldt_ros.bench.restart``
-    (README), not asserted here.
+    all this takes depends on the machine, so it is measured by ``python -m gldt_ros.bench.restart``,
+    not asserted here.
     """
     from gldt_ros.bench.restart import recorded_track_times, run_with_kill
     from gldt_ros.runtime.shm_cleanup import SHM_DIRECTORY
 
     record = tmp_path / "graph.mcap"
-    # The 150-frame bag replays in 4-10 s depending on the machine: kill early enough that the
-    # kill lands mid-replay on a fast machine (at 4 s it could land after the last frame). On a
-    # slow one it may land before the first frame, which the driver must handle just the same.
+    # The 150-frame bag replays in a few seconds on a fast machine: kill early enough that the
+    # kill lands mid-replay there. On a slow machine it may land before the first frame, which
+    # the driver must handle just the same.
     # --spare-delay 0: the spare must be warm before the kill for the restart to use it.
     run = run_with_kill(
         victim,
-        REPO / "bags" / "halmstad_v_drone_001",
+        REPO_ROOT / "bags" / "halmstad_v_drone_001",
         record,
         [str(PIPELINE), "--spare-delay", "0"],
         env=isolated_ros_env(),

@@ -88,22 +88,18 @@ def test_children_of_a_frames_process_start_on_the_small_segment_profile(monkeyp
 def test_frame_pair_buffer_asks_for_the_frames_profile_and_the_detectors_do_not(monkeypatch) -> None:
     import importlib
 
-    asked = {}
-    for name in ("frame_pair_buffer", "global_detector", "local_detector", "mode_scheduler", "jptrack_tracker"):
-        module = importlib.import_module(f"gldt_ros.nodes.{name}")
+    from gldt_ros.interface.graph import NODES
+
+    asked: dict[str, bool] = {}
+    for name, module_name in NODES.items():
+        module = importlib.import_module(module_name)
         monkeypatch.setattr(
             module,
             "run_node",
             lambda factory, publishes_frames=False, _n=name: asked.setdefault(_n, publishes_frames) and 0,
         )
         module.main()
-    assert asked == {
-        "frame_pair_buffer": True,
-        "global_detector": False,
-        "local_detector": False,
-        "mode_scheduler": False,
-        "jptrack_tracker": False,
-    }
+    assert asked == {name: name == "frame_pair_buffer" for name in NODES}
 
 
 SEGMENT_PROBE = (
@@ -144,4 +140,5 @@ def test_a_participant_on_the_frames_profile_gets_the_large_segment(frames: bool
     assert new, "the probe mapped no Fast DDS segment: is the shared-memory transport off?"
     size = max(new.values())  # its own; Fast DDS may also map a small one for other purposes
     wanted = _shm_setting(shipped_frames_profile(), "segment_size") if frames else 512 * 1024
+    assert wanted is not None, "the frames profile sets no segment_size"
     assert wanted <= size < 1.2 * wanted, f"segment of {size} bytes for a profile asking {wanted}"

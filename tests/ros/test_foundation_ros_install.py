@@ -10,21 +10,14 @@ from pathlib import Path
 
 import pytest
 
+from gldt_ros.interface.graph import NODES
 from support import REPO_ROOT, isolated_ros_env
 
 yaml = pytest.importorskip("yaml")
 
-REPO = REPO_ROOT
-INSTALL = REPO / "install" / "gldt_ros"
-EXECUTABLES = (
-    "frame_pair_buffer",
-    "global_detector",
-    "local_detector",
-    "mode_scheduler",
-    "jptrack_tracker",
-    "threat_monitor",
-    "pipeline",
-)
+INSTALL = REPO_ROOT / "install" / "gldt_ros"
+#: One per graph node, plus the ``pipeline`` command and the example subscriber.
+EXECUTABLES = (*NODES, "threat_monitor", "pipeline")
 
 
 @pytest.mark.parametrize("name", EXECUTABLES)
@@ -32,6 +25,15 @@ def test_install_tree_has_executable(name: str) -> None:
     path = INSTALL / "lib" / "gldt_ros" / name
     assert path.is_file(), f"{path} missing: `ros2 run gldt_ros {name}` would fail"
     assert os.access(path, os.X_OK), f"{path} is not executable"
+
+
+@pytest.mark.parametrize("name", NODES)
+def test_each_graph_node_is_a_module_that_builds_and_runs_it(name: str) -> None:
+    """What ``pipeline --in-process``, the warm spare and each executable call on a node's module."""
+    import importlib
+
+    module = importlib.import_module(NODES[name])
+    assert callable(module.create_node) and callable(module.main)
 
 
 def test_install_tree_has_share_files() -> None:
@@ -45,7 +47,7 @@ def test_install_tree_has_share_files() -> None:
     ):
         assert (share / relative).is_file(), f"share/gldt_ros/{relative} missing"
     assert (
-        REPO / "install" / "gldt_ros" / "share" / "ament_index" / "resource_index" / "packages" / "gldt_ros"
+        REPO_ROOT / "install" / "gldt_ros" / "share" / "ament_index" / "resource_index" / "packages" / "gldt_ros"
     ).is_file()
 
 
@@ -62,11 +64,11 @@ def test_pipeline_points_fast_dds_at_the_shipped_profile_unless_the_user_chose_o
     assert profile.parent == INSTALL / "share" / "gldt_ros" / "config", profile
     namespace = {"dds": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
     period = ElementTree.parse(profile).find(".//dds:leaseAnnouncement/dds:nanosec", namespace)
-    assert period is not None and int(period.text) <= 250_000_000
+    assert period is not None and period.text is not None and int(period.text) <= 250_000_000
     heartbeat = ElementTree.parse(profile).find(
         ".//dds:data_writer/dds:times/dds:heartbeatPeriod/dds:nanosec", namespace
     )
-    assert heartbeat is not None and int(heartbeat.text) <= 100_000_000, (
+    assert heartbeat is not None and heartbeat.text is not None and int(heartbeat.text) <= 100_000_000, (
         "late joiners must not wait 3 s for a lost sample"
     )
     monkeypatch.setenv(DDS_PROFILE_VARIABLE, "/etc/my_profile.xml")
@@ -127,7 +129,7 @@ def test_node_processes_get_the_memory_settings_unless_the_user_set_them_or_opte
 def test_config_matches_parameter_schema() -> None:
     from gldt_ros.interface.params import SCHEMA
 
-    config = yaml.safe_load((REPO / "src" / "gldt_ros" / "config" / "gldt.yaml").read_text())
+    config = yaml.safe_load((REPO_ROOT / "src" / "gldt_ros" / "config" / "gldt.yaml").read_text())
     for key, section in config.items():
         node = key.rsplit("/", 1)[-1]
         assert node in SCHEMA, f"config section {key} names no node of the schema"
@@ -141,15 +143,15 @@ def test_config_matches_parameter_schema() -> None:
 def test_shipped_config_holds_the_schema_defaults() -> None:
     from gldt_ros.interface.params import default_yaml
 
-    shipped = (REPO / "src" / "gldt_ros" / "config" / "gldt.yaml").read_text()
+    shipped = (REPO_ROOT / "src" / "gldt_ros" / "config" / "gldt.yaml").read_text()
     assert shipped == default_yaml(), "config/gldt.yaml is stale: run `make docs`"
 
 
-def test_readme_parameter_table_is_generated_from_schema() -> None:
+def test_parameter_page_is_generated_from_schema() -> None:
     from gldt_ros.interface.params import markdown_table
 
-    readme = (REPO / "README.md").read_text()
-    assert markdown_table() in readme, "README parameter table is stale: run `make docs`"
+    page = (REPO_ROOT / "docs" / "parameters.md").read_text()
+    assert markdown_table() in page, "docs/parameters.md is stale: run `make docs`"
 
 
 def test_pipeline_starts_and_stops_cleanly() -> None:

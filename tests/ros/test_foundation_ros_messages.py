@@ -39,7 +39,7 @@ def _value_for(field_type: str, seed: int) -> Any:
     return _filled(message_class, seed)
 
 
-def _filled(message_class: type, seed: int = 1) -> Any:
+def _filled(message_class: Any, seed: int = 1) -> Any:
     message = message_class()
     for index, (name, field_type) in enumerate(message_class.get_fields_and_field_types().items()):
         setattr(message, name, _value_for(field_type, seed + index))

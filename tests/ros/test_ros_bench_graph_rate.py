@@ -1,4 +1,4 @@
-"""bench_graph's "rate the core sustains": the replay rate its latency goal is judged at."""
+"""gldt_ros.bench.graph's "rate the core sustains": the replay rate its latency goal is judged at."""
 
 from __future__ import annotations
 

@@ -16,7 +16,8 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels tha
 from rclpy.executors import ExternalShutdownException  # noqa: E402
 from std_msgs.msg import Header  # noqa: E402
 
-from gldt_ros.launcher.pipeline import default_params_file, node_environment, parse_args  # noqa: E402
+from gldt_ros.interface.graph import default_params_file  # noqa: E402
+from gldt_ros.launcher.pipeline import node_environment, parse_args  # noqa: E402
 from gldt_ros.runtime.executor import (  # noqa: E402
     EVENTS,
     EXECUTOR_ENV,

@@ -24,7 +24,7 @@ def buffer() -> Iterator[Any]:
     context = Context()
     rclpy.init(context=context)
     try:
-        node = FramePairBuffer(context=context)
+        node: Any = FramePairBuffer(context=context)  # given the two lists below
         node.sent_pairs, node.sent_crops = [], []
         node.pairs.publish = node.sent_pairs.append
         node.crops.publish = node.sent_crops.append
@@ -63,10 +63,9 @@ def answer(node: Any, index: int, image: Any, mode: int = 0) -> None:
 
 
 def letterboxed(node: Any, image: Any) -> np.ndarray:
-    from gldt_core.detect.staged import prepare_global_input
     from gldt_ros.interface.convert import image_to_bgr
 
-    return prepare_global_input(node.global_input, image_to_bgr(image))[0]
+    return node.global_input.prepare(image_to_bgr(image))[0]
 
 
 def test_a_pair_after_an_answered_frame_leaves_its_previous_image_out(buffer: Any) -> None:

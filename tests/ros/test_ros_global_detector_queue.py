@@ -24,13 +24,12 @@ def pairs(count: int) -> list:
     from std_msgs.msg import Header
 
     from gldt_core.detect import GlobalDetector
-    from gldt_core.detect.staged import prepare_global_input
     from gldt_ros.interface.convert import bgr_to_image
 
     geometry = GlobalDetector(num_threads=1, optimize_graph=False)
     frame = np.full((512, 640, 3), 200, dtype=np.uint8)
     frame[250:262, 300:316] = 40
-    prepared, letterbox = prepare_global_input(geometry, frame)
+    prepared, letterbox = geometry.prepare(frame)
     messages = []
     for index in range(count):
         header = Header(frame_id="camera")

@@ -14,7 +14,7 @@ rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels tha
 
 from rclpy.context import Context  # noqa: E402
 
-from support import REAL_BAG
+from support import REAL_BAG  # noqa: E402
 
 
 def bag_pairs(count: int) -> tuple[list, int, int, Callable[..., Any]]:
@@ -27,13 +27,12 @@ def bag_pairs(count: int) -> tuple[list, int, int, Callable[..., Any]]:
     from std_msgs.msg import Header
 
     from gldt_core.detect import GlobalDetector
-    from gldt_core.detect.staged import prepare_global_input
     from gldt_core.io.sources import open_source
     from gldt_ros.interface.convert import bgr_to_image
 
     frames = [frame.image for frame in islice(open_source(str(REAL_BAG)), count)]
     geometry = GlobalDetector(num_threads=1, optimize_graph=False)
-    prepared = [prepare_global_input(geometry, frame) for frame in frames]
+    prepared = [geometry.prepare(frame) for frame in frames]
     height, width = frames[0].shape[:2]
 
     def pair(previous: int, current: int, with_previous: bool = True) -> FramePair:
@@ -56,9 +55,8 @@ def bag_pairs(count: int) -> tuple[list, int, int, Callable[..., Any]]:
     return prepared, width, height, pair
 
 
-def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> None:
+def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypatch: pytest.MonkeyPatch) -> None:
     from gldt_core.detect import GlobalDetector
-    from gldt_core.detect.staged import detect_global_streamed
     from gldt_ros.nodes.global_detector import GlobalDetectorNode
 
     prepared, width, height, pair = bag_pairs(5)
@@ -71,9 +69,14 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> Non
         assert reuse is not None, "the shipped AM-YOLO comes with its split pair"
         runs: list[int] = []
         original = reuse.features
-        reuse.features = lambda blob: (runs.append(1), original(blob))[1]  # type: ignore[method-assign]
+
+        def counted_features(blob: np.ndarray) -> Any:
+            runs.append(1)
+            return original(blob)
+
+        monkeypatch.setattr(reuse, "features", counted_features)
         published: list = []
-        node.publisher.publish = published.append  # type: ignore[method-assign]
+        monkeypatch.setattr(node.publisher, "publish", published.append)
         full = GlobalDetector(
             num_threads=1,
             score_threshold=node.detector.score_threshold,
@@ -87,8 +90,8 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> Non
             node.on_pair(pair(previous, current))
         assert len(runs) == 2  # the first pair and the one after the gap
         for (previous, current), message in zip(sequence, published):
-            expected, _ = detect_global_streamed(
-                full, prepared[previous][0], prepared[current][0], prepared[current][1], width, height
+            expected, _ = full.detect_prepared(
+                prepared[previous][0], prepared[current][0], prepared[current][1], width, height
             )
             boxes = np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections])
             centres = np.c_[(expected[:, 0] + expected[:, 2]) / 2, (expected[:, 1] + expected[:, 3]) / 2]
@@ -100,12 +103,13 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them() -> Non
         rclpy.shutdown(context=context)
 
 
-def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_frame_itself() -> None:
+def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_frame_itself(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     """frame_pair_buffer leaves the previous image out once this node answered that frame: the
     boxes must be those of the full pair. A node that does not hold the frame (restarted) pairs
     the current frame with itself and says so, instead of failing on the empty image."""
     from gldt_core.detect import GlobalDetector
-    from gldt_core.detect.staged import detect_global_streamed
     from gldt_ros.nodes.global_detector import GlobalDetectorNode
 
     prepared, width, height, pair = bag_pairs(3)
@@ -116,9 +120,7 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
         )
 
     def expected(previous: int, current: int) -> np.ndarray:
-        rows, _ = detect_global_streamed(
-            full, prepared[previous][0], prepared[current][0], prepared[current][1], width, height
-        )
+        rows, _ = full.detect_prepared(prepared[previous][0], prepared[current][0], prepared[current][1], width, height)
         return np.c_[
             (rows[:, 0] + rows[:, 2]) / 2,
             (rows[:, 1] + rows[:, 3]) / 2,
@@ -132,7 +134,7 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
     try:
         node = GlobalDetectorNode(context=context)
         published: list = []
-        node.publisher.publish = published.append  # type: ignore[method-assign]
+        monkeypatch.setattr(node.publisher, "publish", published.append)
         warnings: list[str] = []
         node.warn_throttled = lambda key, text: warnings.append(text)  # type: ignore[method-assign]
         full = GlobalDetector(
@@ -163,13 +165,13 @@ def test_the_node_warms_the_model_up_before_it_is_ready_and_keeps_nothing_of_it(
     import gldt_ros.nodes.global_detector as module
 
     calls: list[tuple[tuple[int, ...], bool]] = []
-    original = module.detect_global_streamed
+    original = module.GlobalDetector.detect_prepared
 
     def counting(detector, previous, current, mapping, width, height, previous_features=None):
         calls.append((current.shape, previous_features is not None))
         return original(detector, previous, current, mapping, width, height, previous_features)
 
-    monkeypatch.setattr(module, "detect_global_streamed", counting)
+    monkeypatch.setattr(module.GlobalDetector, "detect_prepared", counting)
     context = Context()
     rclpy.init(context=context)
     try:

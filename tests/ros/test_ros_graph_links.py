@@ -1,4 +1,5 @@
-"""Link reports: what a node says it has matched, and how the pipeline judges a graph connected."""
+"""gldt_ros.interface.graph_links: what a node says it has matched, and how ``pipeline`` judges a
+graph connected."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ rclpy = pytest.importorskip("rclpy")
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue  # noqa: E402
 from std_msgs.msg import String  # noqa: E402
 
-from gldt_ros.launcher.graph_links import (  # noqa: E402
+from gldt_ros.interface.graph_links import (  # noqa: E402
     MATCHED_PUBLISHERS,
     MATCHED_SUBSCRIPTIONS,
     UNKNOWN_NODE_NAME,

@@ -58,7 +58,8 @@ def test_most_urgent_prefers_smallest_time_to_collision() -> None:
     far = track_message(id=1, time_to_collision_valid=True, time_to_collision=9.0)
     near = track_message(id=2, time_to_collision_valid=True, time_to_collision=2.5)
     lost = track_message(id=3, state=Track.STATE_LOST, time_to_collision_valid=True, time_to_collision=0.5)
-    assert most_urgent([far, near, lost]).id == 2
+    urgent = most_urgent([far, near, lost])
+    assert urgent is not None and urgent.id == 2
     assert "TTC 2.5 s" in describe(near)
     assert most_urgent([lost]) is None
 

@@ -13,16 +13,16 @@ import pytest
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
+from gldt_core.io.bag import IMAGE_TYPES
+from gldt_core.io.cdr import header_stamp_ns, with_header_stamp
 from gldt_ros.bench.soak import (
     Sample,
     build_report,
     format_report,
     group_frames,
     parse_importtime,
-    restamp,
     rss_summary,
 )
-from gldt_ros.launcher.bag_io import IMAGE_TYPES_SET, header_stamp_ns
 
 MIB = 1024 * 1024
 
@@ -34,9 +34,9 @@ def cdr_with_stamp(stamp_ns: int, payload: bytes = b"frame_id\x00rest", little_e
 
 
 @pytest.mark.parametrize("little_endian", [True, False])
-def test_restamp_replaces_only_the_stamp(little_endian: bool) -> None:
+def test_with_header_stamp_replaces_only_the_stamp(little_endian: bool) -> None:
     original = cdr_with_stamp(1_500_000_000, little_endian=little_endian)
-    patched = restamp(original, 123_456_789_012)
+    patched = with_header_stamp(original, 123_456_789_012)
     assert header_stamp_ns(patched) == 123_456_789_012
     assert patched[:4] == original[:4] and patched[12:] == original[12:]
 
@@ -58,12 +58,12 @@ def test_group_frames_puts_the_image_last_and_drops_imageless_frames() -> None:
         message("img", image, 33),
         message("gt", truth, 66),  # no image at this stamp
     ]
-    frames = group_frames(messages, IMAGE_TYPES_SET)
+    frames = group_frames(messages, IMAGE_TYPES)
     assert [[m.topic for m in frame] for frame in frames] == [["info", "gt", "img"], ["info", "img"]]
 
 
 def sample(t_s: float, rss_mib: dict[str, float], pids: dict[str, int] | None = None, **tracks) -> Sample:
-    rss = {name: int(value * MIB) for name, value in rss_mib.items()}
+    rss: dict[str, int | None] = {name: int(value * MIB) for name, value in rss_mib.items()}
     return Sample(t_s=t_s, rss=rss, pids=pids or {name: 1 for name in rss}, **tracks)
 
 
@@ -123,3 +123,11 @@ def test_importtime_charges_self_time_to_root_packages() -> None:
     total, top = parse_importtime(stderr)
     assert total == pytest.approx(3.6)
     assert top[0] == ("cv2", pytest.approx(2.0)) and top[1] == ("onnxruntime", pytest.approx(1.5))
+
+
+def test_readiness_is_known_for_exactly_the_graphs_nodes() -> None:
+    """The start-up report waits for each node's last subscription: one per node of the graph."""
+    from gldt_ros.bench.soak import LAST_SUBSCRIPTION
+    from gldt_ros.interface.graph import NODES
+
+    assert set(LAST_SUBSCRIPTION) == set(NODES)

@@ -17,6 +17,7 @@ from gldt_ros.runtime import spare  # noqa: E402
         ("not json\n", "bad request"),
         ('["no_such_node"]\n', "expected one of"),
         ('["mode_scheduler", 3]\n', "string arguments"),
+        ('[["mode_scheduler"]]\n', "expected one of"),
         ("{}\n", "bad request"),
         ('{"mode_scheduler": 1}\n', "expected a JSON list"),
         ("[]\n", "bad request"),
@@ -50,13 +51,18 @@ def test_the_spare_waits_out_the_start_up_unless_told_not_to(
     monkeypatch: pytest.MonkeyPatch, delay: str | None, expect_spare: bool
 ) -> None:
     """Its imports would compete with the nodes' first frames, so by default the first spare comes
-    ``--spare-delay`` seconds after start-up, as after a restart; bench_restart and the kill tests
+    ``--spare-delay`` seconds after start-up, as after a restart; gldt_ros.bench.restart and the kill tests
     ask for it at once (0)."""
     from gldt_ros.launcher import pipeline
 
     launched: list[list[str]] = []
+
+    def popen(command: list[str], **_: object) -> _WaitingSpare:
+        launched.append(command)
+        return _WaitingSpare()
+
     monkeypatch.setattr(pipeline.NodeProcesses, "_start", lambda self, name: None)  # no node processes
-    monkeypatch.setattr(pipeline.subprocess, "Popen", lambda command, **_: launched.append(command) or _WaitingSpare())
+    monkeypatch.setattr(pipeline.subprocess, "Popen", popen)
     args = pipeline.parse_args(["--spare-delay", delay] if delay is not None else [])
     assert (
         args.spare_delay == (float(delay) if delay is not None else pipeline.SPARE_DELAY_S)

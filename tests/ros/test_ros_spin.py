@@ -64,7 +64,7 @@ def test_a_caller_can_say_when_the_executor_is_meant_to_run() -> None:
 
 def test_a_real_spin_thread_ends_without_an_exception_when_its_context_is_shut_down() -> None:
     """Shut the context down under a live spin loop many times; no thread may raise."""
-    escaped: list[BaseException] = []
+    escaped: list[BaseException | None] = []
     previous_hook = threading.excepthook
     threading.excepthook = lambda hook_args: escaped.append(hook_args.exc_value)
     try:

@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-import argparse
 import subprocess
 import sys
 import textwrap
-import threading
 import time
+from typing import Any
 
 import pytest
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
-from gldt_ros.launcher.pipeline import NodeProcesses  # noqa: E402
 from gldt_ros.runtime.stack_dump import STACK_DUMP_SIGNAL  # noqa: E402
 
 #: A stand-in node: registers the dump as run_node does, then ignores SIGINT inside a named function.
@@ -40,19 +38,6 @@ def start_stuck_node() -> subprocess.Popen[bytes]:
     return process
 
 
-def children_of(processes: dict[str, subprocess.Popen[bytes]]) -> NodeProcesses:
-    """A NodeProcesses holding ``processes`` instead of the five nodes it would launch."""
-    children = object.__new__(NodeProcesses)
-    children.args = argparse.Namespace()
-    children.processes = processes
-    children.restarts = {name: 0 for name in processes}
-    children.supervising = True
-    children.spare = None
-    children._segments_due = None
-    children._lock = threading.Lock()
-    return children
-
-
 def test_a_node_prints_every_threads_stack_on_the_signal_and_keeps_running() -> None:
     process = start_stuck_node()
     try:
@@ -68,10 +53,10 @@ def test_a_node_prints_every_threads_stack_on_the_signal_and_keeps_running() -> 
 
 
 def test_stop_dumps_the_stacks_of_a_node_that_ignores_sigint_before_killing_it(
-    capsys: pytest.CaptureFixture[str],
+    capsys: pytest.CaptureFixture[str], node_processes_of: Any
 ) -> None:
     process = start_stuck_node()
-    children = children_of({"local_detector": process})
+    children = node_processes_of({"local_detector": process})
     started = time.monotonic()
     unclean = children.stop(grace_s=0.5)
     took = time.monotonic() - started
@@ -84,13 +69,13 @@ def test_stop_dumps_the_stacks_of_a_node_that_ignores_sigint_before_killing_it(
     assert took < 8.0, "SIGTERM must follow the dump, not wait for SIGKILL's deadline"
 
 
-def test_a_node_that_stops_on_sigint_gets_no_dump(capsys: pytest.CaptureFixture[str]) -> None:
+def test_a_node_that_stops_on_sigint_gets_no_dump(capsys: pytest.CaptureFixture[str], node_processes_of: Any) -> None:
     process = subprocess.Popen(
         [sys.executable, "-c", "import time\nprint('ready', flush=True)\ntime.sleep(60)"],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )
     assert process.stdout is not None and process.stdout.readline().strip() == b"ready"
-    children = children_of({"tracker": process})
+    children = node_processes_of({"tracker": process})
     assert children.stop(grace_s=5.0) == 0
     assert "did not stop" not in capsys.readouterr().out

@@ -7,12 +7,11 @@ import subprocess
 import sys
 import textwrap
 import time
+from typing import Any
 
 import pytest
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
-
-from test_ros_stack_dump import children_of  # noqa: E402
 
 from gldt_ros.runtime.teardown_limit import TEARDOWN_TIMEOUT_EXIT, limit_teardown  # noqa: E402
 
@@ -52,7 +51,7 @@ def test_a_limit_below_one_second_is_refused() -> None:
 
 
 def test_pipeline_reports_a_hung_teardown_without_counting_the_node_as_failed(
-    capsys: pytest.CaptureFixture[str],
+    capsys: pytest.CaptureFixture[str], node_processes_of: Any
 ) -> None:
     process = subprocess.Popen(
         [sys.executable, "-c", STUCK_TEARDOWN], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL
@@ -60,7 +59,7 @@ def test_pipeline_reports_a_hung_teardown_without_counting_the_node_as_failed(
     assert (
         process.stdout is not None and process.stdout.readline().strip() == b"ready"
     )  # SIGINT only once it is ignored
-    assert children_of({"global_detector": process}).stop(grace_s=10.0) == 0
+    assert node_processes_of({"global_detector": process}).stop(grace_s=10.0) == 0
     out = capsys.readouterr().out
     assert "node global_detector stopped, but its rclpy teardown hung" in out
     assert "exited with code" not in out

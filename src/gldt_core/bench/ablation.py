@@ -4,7 +4,7 @@ Four rows per dataset - GD+ByteTrack, GD+LD+ByteTrack, GD+JPTrack, GD+LD+JPTrack
 IDF1, MOTA, MOTP, HOTA (TrackEval definitions, percent) and FPS, on
 
 * synthetic 1080p test scenes (``gldt_core.sim.presets``, test split), and
-* the Halmstad validation clips (``detect.halmstad_split``), skipped with a reason if absent.
+* the Halmstad validation clips (:mod:`gldt_core.eval.halmstad_split`), skipped with a reason if absent.
 
 All four rows share the same detector instances and the same decoded frames, and take turns frame
 by frame so that the machine's drift hits them alike: their FPS are comparable. GD+JPTrack
@@ -13,7 +13,7 @@ GL-DT schedule's gain, measured in the same run. Frames are kept JPEG-encoded in
 decoded as they are played, like a video would be; each frame's decode time (``decode`` stage) is
 booked to every row.
 
-``--oracle`` keeps all of that but hands the pipelines each frame's ground truth in place of the
+``--oracle`` keeps all of that but hands the systems each frame's ground truth in place of the
 detectors' boxes (:mod:`gldt_core.bench.oracle`): the schedule's GD share and speed-up, and the
 tracker's scores, with a detector that never errs, at the configured detectors' cost.
 """
@@ -21,6 +21,7 @@ tracker's scores, with a detector that never errs, at the configured detectors' 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from typing import Any
 
 #: (label, local detection on, tracker) in the paper's order.
@@ -51,12 +52,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="Halmstad dataset root (skipped with a message when absent)",
     )
-    parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration (defaults: Table I)")
+    parser.add_argument("--config", metavar="CFG.yaml", help="GL-DT system configuration (defaults: Table I)")
     parser.add_argument(
         "--oracle",
         action="store_true",
-        help="hand the pipelines the ground truth instead of the detectors' boxes (each configured detector "
-        "still runs, for its time): the schedule's GD share and speed-up with a perfect detector on this machine",
+        help="hand the GL-DT systems the ground truth instead of the detectors' boxes (each configured "
+        "detector still runs, for its time): the schedule's GD share and speed-up with a perfect detector "
+        "on this machine",
     )
     parser.add_argument("--json", metavar="OUT.json", help="also write all numbers as JSON")
     parser.set_defaults(func=handle_ablation)
@@ -98,7 +100,9 @@ def cache_source(source: Any, name: str, max_frames: int | None = None) -> Cache
     """Decode a :class:`gldt_core.io.sources.FrameSource` once into a JPEG cache with its ground truth."""
     import numpy as np
 
-    encoded, stamps, gt_rows = [], [], []
+    encoded: list[np.ndarray] = []
+    stamps: list[float] = []
+    gt_rows: list[np.ndarray] = []
     for frame in source:
         if max_frames is not None and len(encoded) >= max_frames:
             break
@@ -148,13 +152,12 @@ def run_dataset(
 ) -> list[dict[str, Any]]:
     """All four variants over ``sequences``; one dict per variant (metrics in %, FPS, breakdown).
 
-    ``oracle``: the detectors run as usual but the pipelines get each frame's ground truth in
+    ``oracle``: the detectors run as usual but the systems get each frame's ground truth in
     place of their boxes (:mod:`gldt_core.bench.oracle`).
 
     The four variants take turns frame by frame (:func:`run_frames_interleaved`) rather than each
-    running the sequences in turn: this shared machine's speed drifts by up to a factor of two
-    from one minute to the next, and the speed ratio between variants is only fair when each saw
-    the same machine.
+    running the sequences in turn: a shared machine's speed drifts from one minute to the next,
+    and the speed ratio between variants is only fair when each saw the same machine.
     """
     import sys
 
@@ -175,10 +178,11 @@ def run_dataset(
     runs = [_VariantRun(label, config.with_changes(local_enabled=on, tracker=name)) for label, on, name in VARIANTS]
     for sequence in sequences:
         drones_by_frame = _drone_centres_by_frame(sequence.gt)
-        pipelines, callbacks = [], []
+        systems: list[GLDTSystem] = []
+        callbacks: list[Callable[[Any, Any], None] | None] = []
         for run in runs:
             local_enabled = run.config.scheduler.local_enabled
-            pipeline = GLDTSystem(
+            system = GLDTSystem(
                 run.config,
                 global_detector=global_detector,
                 local_detector=local_detector if local_enabled else None,
@@ -188,8 +192,14 @@ def run_dataset(
 
             run.start_sequence()
 
-            def watch_schedule(frame: Any, _tracks: Any, pipeline: Any = pipeline, run: _VariantRun = run) -> None:
-                plan = pipeline.last_plan
+            def watch_schedule(
+                frame: Any,
+                _tracks: Any,
+                system: GLDTSystem = system,
+                run: _VariantRun = run,
+                drones_by_frame: dict[int, Any] = drones_by_frame,
+            ) -> None:
+                plan = system.last_plan
                 if plan is None:
                     return
                 run.note_mode(plan.mode.value, plan.reason)
@@ -199,10 +209,10 @@ def run_dataset(
                 run.coverage[0] += int(_inside_any(centres, plan.rois).sum())
                 run.coverage[1] += len(centres)
 
-            pipelines.append(pipeline)
+            systems.append(system)
             callbacks.append(watch_schedule if local_enabled else None)
         frames = feed.play(sequence, sequence.gt) if feed is not None else sequence
-        for run, result in zip(runs, run_frames_interleaved(pipelines, frames, on_frame=callbacks)):
+        for run, result in zip(runs, run_frames_interleaved(systems, frames, on_frame=callbacks)):
             run.frames += result.frames
             run.seconds += result.seconds
             run.gd_frames += result.global_frames
@@ -323,8 +333,8 @@ def _ratio_without_decode(ours: dict[str, Any], peer: dict[str, Any]) -> float |
     wall-clock time per frame (``1 / fps``) minus its ``decode`` stage. None without a decode stage.
 
     Every row pays the same decode for every frame, which caps the ratio however cheap LD frames
-    are; on 1080p JPEGs it is a third of a GD frame. A camera driver that publishes raw images
-    spares the perception stack that cost, and this is the ratio it would see.
+    are. A camera driver that publishes raw images spares the perception stack that cost, and
+    this is the ratio it would see.
     """
     if "decode" not in ours["stage_ms"] or "decode" not in peer["stage_ms"] or not ours["fps"] or not peer["fps"]:
         return None

@@ -7,7 +7,7 @@ Accuracy (drone class, IoU-matched as in COCO; see :mod:`gldt_core.eval.detectio
   held-out bird/airplane clips at the operating threshold;
 * synthetic: frames of the ``gldt_core.sim.presets`` "test" scenes (1080p), never trained on.
 
-The detectors are asked about drones only, as the pipeline asks them (``--all-classes``: about
+The detectors are asked about drones only, as the GL-DT system asks them (``--all-classes``: about
 every class, keeping the boxes whose best class is drone). A line per model then says where the
 drones went: found, boxed under another class, boxed badly or missed, and what its false drones
 at the operating threshold are (:func:`gldt_core.eval.detection_metrics.error_breakdown`).
@@ -23,6 +23,10 @@ PNG (like the paper's Fig. 7).
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from gldt_core.detect import GlobalDetector, LocalDetector
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -47,12 +51,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--long-side",
         type=int,
         default=None,
-        help="global models' input long side in px (default: each model card's; a multiple of 64), e.g. 1280 to ask whether small drones are missed for want of resolution",
+        help="global models' input long side in px (default: each model card's; a multiple of 64), "
+        "e.g. 1280 to ask whether small drones are missed for want of resolution",
     )
     parser.add_argument(
         "--all-classes",
         action="store_true",
-        help="ask the detectors about every class and keep the boxes labelled drone (as before 2026-12-02); default: ask about drones only, as the pipeline does",
+        help="ask the detectors about every class and keep the boxes whose best class is drone; "
+        "default: ask about drones only, as the GL-DT system does",
     )
     parser.add_argument("--latency-runs", type=int, default=30)
     parser.add_argument(
@@ -69,14 +75,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_run)
 
 
-def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, object]:
-    from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector, LocalDetector, shipped_model_path
+def _global_detectors(args: argparse.Namespace, threshold: float) -> dict[str, GlobalDetector]:
+    from gldt_core.detect import GlobalDetector, shipped_model_path
 
-    common = {
-        "score_threshold": threshold,
-        "num_threads": args.threads,
-        "classes": None if args.all_classes else (DRONE_CLASS_ID,),
-    }
+    common = _detector_options(args, threshold)
     return {
         "AM-YOLO": GlobalDetector(
             args.global_model or shipped_model_path("global"), long_side=args.long_side, **common
@@ -84,8 +86,27 @@ def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, object]:
         "no-STFF": GlobalDetector(
             args.nostff_model or shipped_model_path("global_nostff"), long_side=args.long_side, **common
         ),
-        "local": LocalDetector(args.local_model or shipped_model_path("local"), **common),
     }
+
+
+def _local_detector(args: argparse.Namespace, threshold: float) -> LocalDetector:
+    from gldt_core.detect import LocalDetector, shipped_model_path
+
+    return LocalDetector(args.local_model or shipped_model_path("local"), **_detector_options(args, threshold))
+
+
+def _detector_options(args: argparse.Namespace, threshold: float) -> dict[str, Any]:
+    from gldt_core.detect import DRONE_CLASS_ID
+
+    return {
+        "score_threshold": threshold,
+        "num_threads": args.threads,
+        "classes": None if args.all_classes else (DRONE_CLASS_ID,),
+    }
+
+
+def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, GlobalDetector | LocalDetector]:
+    return {**_global_detectors(args, threshold), "local": _local_detector(args, threshold)}
 
 
 def _drones(detections: list) -> list:
@@ -95,22 +116,15 @@ def _drones(detections: list) -> list:
     return [d[d[:, 5] == DRONE_CLASS_ID][:, :5] for d in detections]
 
 
-def _run_detector(name: str, detector: object, frames_prev_cur: list[tuple], roi_side: int) -> list:
+def _run_detector(detector: GlobalDetector | LocalDetector, frames_prev_cur: list[tuple], roi_side: int) -> list:
     """Detections of every class ``(N, 6)`` (``x1, y1, x2, y2, score, MOT class``) per evaluated frame."""
     import numpy as np
 
-    from gldt_core.detect.postprocess import nms
-    from gldt_core.detect.video import tile_rois
+    from gldt_core.detect.video import frame_detections
 
     out = []
     for previous, current in frames_prev_cur:
-        if name == "local":
-            h, w = current.shape[:2]
-            dets = detector.detect_rois(current, tile_rois(w, h, roi_side))[:, :6]  # type: ignore[attr-defined]
-            if len(dets):
-                dets = dets[nms(dets[:, :4], dets[:, 4], 0.5)]
-        else:
-            dets = detector.detect(previous, current)  # type: ignore[attr-defined]
+        dets = frame_detections(detector, previous, current, roi_side)
         out.append(dets[:, :6] if len(dets) else np.zeros((0, 6), np.float32))
     return out
 
@@ -165,7 +179,8 @@ def _breakdown_line(dataset: str, model: str, errors: dict, threshold: float) ->
     return (
         f"  {dataset:16s} {model:8s} found {share('found')}, called another class {share('other_class')}, "
         f"box off {share('poorly_placed')}, missed {share('missed')}; "
-        f"false drones at {threshold}: {int(errors['fp_on_object'])} on an object, {int(errors['fp_background'])} on background"
+        f"false drones at {threshold}: {int(errors['fp_on_object'])} on an object, "
+        f"{int(errors['fp_background'])} on background"
     )
 
 
@@ -204,7 +219,11 @@ def _plot(curves: dict, path_pr, path_rc, title: str) -> None:
             else:
                 ax.plot(thresholds, recall_at_confidence(result, thresholds), label=name)
                 ax.set_xlabel("confidence"), ax.set_ylabel("recall")
-        ax.set_xlim(0, 1), ax.set_ylim(0, 1.02), ax.set_title(title), ax.legend(), ax.grid(alpha=0.3)
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1.02)
+        ax.set_title(title)
+        ax.legend()
+        ax.grid(alpha=0.3)
         fig.tight_layout()
         tmp = path.with_name(path.name + ".tmp.png")
         fig.savefig(tmp, dpi=100)
@@ -213,6 +232,7 @@ def _plot(curves: dict, path_pr, path_rc, title: str) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    import functools
     import json
     from pathlib import Path
 
@@ -231,7 +251,7 @@ def _run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     # Accuracy uses a low threshold so the PR curves span the whole range.
     detectors = _detectors(args, threshold=0.01)
-    roi_side = int(detectors["local"].card.get("roi_side", 300))  # type: ignore[attr-defined]
+    roi_side = int(detectors["local"].card.get("roi_side", 300))
     report: dict = {"threshold": args.score_threshold, "datasets": {}}
 
     datasets: dict[str, tuple[list, list]] = {}
@@ -256,14 +276,15 @@ def _run(args: argparse.Namespace) -> int:
         datasets["synthetic-test"] = _synthetic_frames(args.synthetic_scenes, args.synthetic_frames)
 
     print(
-        f"{'dataset':16s} {'model':8s} {'frames':>6s} {'gt':>5s} {'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s}"
+        f"{'dataset':16s} {'model':8s} {'frames':>6s} {'gt':>5s} "
+        f"{'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s}"
     )
     breakdowns: list[str] = []
     for dname, (pairs, gts) in datasets.items():
         curves = {}
         report["datasets"][dname] = {}
         for name, detector in detectors.items():
-            every_class = _run_detector(name, detector, pairs, roi_side)
+            every_class = _run_detector(detector, pairs, roi_side)
             dets = _drones(every_class)
             summary = detection_summary(dets, gts)
             curves[name] = match(dets, gts, 0.5)
@@ -272,7 +293,8 @@ def _run(args: argparse.Namespace) -> int:
             report.setdefault("errors", {}).setdefault(dname, {})[name] = errors
             breakdowns.append(_breakdown_line(dname, name, errors, args.score_threshold))
             print(
-                f"{dname:16s} {name:8s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} {summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f}"
+                f"{dname:16s} {name:8s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} "
+                f"{summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f}"
             )
         _plot(curves, out / f"pr_{dname}.png", out / f"recall_confidence_{dname}.png", f"drone, {dname}")
         a, b = report["datasets"][dname]["AM-YOLO"]["ap50"], report["datasets"][dname]["no-STFF"]["ap50"]
@@ -284,34 +306,37 @@ def _run(args: argparse.Namespace) -> int:
     if negatives is not None and negatives[0]:
         report["false_drones_per_frame"] = {}
         for name, detector in detectors.items():
-            dets = _drones(_run_detector(name, detector, negatives[0], roi_side))
+            dets = _drones(_run_detector(detector, negatives[0], roi_side))
             rate = float(np.mean([(d[:, 4] >= args.score_threshold).sum() for d in dets]))
             report["false_drones_per_frame"][name] = rate
             print(
-                f"bird/airplane clips ({len(dets)} frames): {name:8s} false drone detections per frame at score >= {args.score_threshold}: {rate:.3f}"
+                f"bird/airplane clips ({len(dets)} frames): {name:8s} false drone detections per frame "
+                f"at score >= {args.score_threshold}: {rate:.3f}"
             )
 
     frame_1080 = np.full((1080, 1920, 3), 128, np.uint8)
     rng = np.random.default_rng(0)
     frame_1080[:] = rng.integers(90, 170, size=(1080, 1920, 1), dtype=np.uint8)
     # The global models are timed per frame of a GD stretch (each frame paired with the one
-    # before, carrying its letterboxed input and reusable features), as the pipeline runs them.
+    # before, carrying its letterboxed input and reusable features), as the GL-DT system runs them.
     stretch = [frame_1080, np.roll(frame_1080, 3, axis=1)]
     rois = np.array([[100, 100, 400, 400], [800, 300, 1100, 600], [1400, 500, 1700, 800], [300, 700, 600, 1000]])
     report["latency_ms"] = {}
     for threads in args.latency_threads:
         args_t = argparse.Namespace(**{**vars(args), "threads": threads})
-        timed = _detectors(args_t, threshold=args.score_threshold)
+        timed = _global_detectors(args_t, threshold=args.score_threshold)
+        timed_local = _local_detector(args_t, threshold=args.score_threshold)
         latency = {
             "AM-YOLO 1080p frame": _latency(gd_stretch_call(timed["AM-YOLO"], stretch), args.latency_runs),
             "no-STFF 1080p frame": _latency(gd_stretch_call(timed["no-STFF"], stretch), args.latency_runs),
-            "local 4 ROIs": _latency(lambda: timed["local"].detect_rois(frame_1080, rois), args.latency_runs),  # type: ignore[attr-defined]
+            "local 4 ROIs": _latency(functools.partial(timed_local.detect_rois, frame_1080, rois), args.latency_runs),
         }
         report["latency_ms"][f"threads={threads}"] = latency
-        in_w, in_h = timed["AM-YOLO"].input_size(1920, 1080)  # type: ignore[attr-defined]
+        in_w, in_h = timed["AM-YOLO"].input_size(1920, 1080)
         print(
-            f"latency (median of {args.latency_runs}, onnxruntime threads={threads}; global input {in_w}x{in_h}, local input {timed['local'].input_side}):"
-        )  # type: ignore[attr-defined]
+            f"latency (median of {args.latency_runs}, onnxruntime threads={threads}; "
+            f"global input {in_w}x{in_h}, local input {timed_local.input_side}):"
+        )
         for key, value in latency.items():
             print(f"  {key:22s} {value:7.1f} ms")
         print(

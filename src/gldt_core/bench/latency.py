@@ -1,12 +1,12 @@
 """``gldt bench latency``: detector ONNX files timed side by side, interleaved, in one run.
 
 Choosing between model variants (fp32 or int8, a 256 or a 224 px local input, another width)
-means comparing milliseconds that differ by 10-20 %, and this shared machine drifts by more than
-that between runs. So every model runs once per round, rounds repeat, and each model's median is
+means comparing milliseconds that differ little, and a shared machine drifts by more than that
+between runs. So every model runs once per round, rounds repeat, and each model's median is
 printed with its ratio to the first model given (the peer). A global model (two inputs: previous
 and current frame) is timed on a GD stretch of 1080p frames (each frame paired with the one
-before, as the pipeline runs it), a local model (one batched input) on four 300 px ROIs of a
-frame, both including pre- and post-processing, as the pipeline calls them.
+before, as the GL-DT system runs it), a local model (one batched input) on four 300 px ROIs of a
+frame, both including pre- and post-processing, as the system calls them.
 """
 
 from __future__ import annotations
@@ -39,7 +39,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def gd_stretch_call(detector: Any, frames: list[Any]) -> Callable[[], Any]:
     """One call = the next frame of a GD stretch over ``frames`` (each with the one before it),
-    handing each frame's carry (letterboxed input, reusable features) to the next as the pipeline does."""
+    handing each frame's carry (letterboxed input, reusable features) to the next as the GL-DT
+    system does."""
     state: dict[str, Any] = {"index": 0, "carry": None}
 
     def call() -> Any:
@@ -56,17 +57,12 @@ def detector_calls(path: Path, threads: int) -> list[tuple[str, str, Callable[[]
     inputs) and one timed call. An AM-YOLO with a split pair (``gldt export --feature-reuse``)
     gets a second row without it, so the reuse shows as a ratio measured in the same rounds."""
     import numpy as np
-    import onnxruntime as ort
 
     from gldt_core.detect import GlobalDetector, LocalDetector
-    from gldt_core.detect.runtime import DetectorConfigError
+    from gldt_core.detect.session import open_session
 
-    if not path.is_file():
-        raise DetectorConfigError(f"{path}: detector model not found")
-    try:
-        inputs = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"]).get_inputs()
-    except Exception as error:  # onnxruntime raises several private exception types
-        raise DetectorConfigError(f"{path}: cannot load ONNX model ({type(error).__name__})") from error
+    session, _ = open_session(path, ("CPUExecutionProvider",), None, optimize_graph=False)
+    inputs = session.get_inputs()
     rng = np.random.default_rng(0)
     frames = [rng.integers(90, 170, size=(1080, 1920, 3), dtype=np.uint8) for _ in range(2)]
     # Local models have one input of a fixed square size; global ones (AM-YOLO takes two frames,
@@ -102,7 +98,8 @@ def _run(args: argparse.Namespace) -> int:
     for path in args.models:  # e.g. a shell glob over models/ also lists the split pairs' parts
         if path.name.endswith((".features.onnx", ".reuse.onnx")):
             print(
-                f"skipping {path}: a part of a split AM-YOLO (gldt export --feature-reuse), timed with the model it was split from"
+                f"skipping {path}: a part of a split AM-YOLO (gldt export --feature-reuse), "
+                "timed with the model it was split from"
             )
         else:
             models.append(path)

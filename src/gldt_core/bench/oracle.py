@@ -2,7 +2,7 @@
 
 ``gldt bench ablation --oracle`` asks how fast and how good the GL-DT schedule could be on this
 machine if the detectors were perfect. Each detector still runs on every frame it is given, so
-every frame costs what it costs with the shipped models, but what the pipeline receives is the
+every frame costs what it costs with the shipped models, but what the GL-DT system receives is the
 ground truth of that frame: all target boxes on a GD frame, the target boxes whose centre lies
 in an ROI on an LD frame. The scheduler, the ROIs and the tracker then act as they would behind
 a detector that misses nothing and invents nothing.
@@ -12,7 +12,7 @@ schedule has to fall back to GD, and what an LD frame costs beside a GD frame. T
 on the detector (a drone it scores low is not tracked, so GD keeps searching); the oracle removes
 that dependence and leaves what Table I's counters and this CPU allow.
 
-Two limits of the stand-in: LD boxes still pass the pipeline's NMS across ROIs (GD boxes pass
+Two limits of the stand-in: LD boxes still pass the system's NMS across ROIs (GD boxes pass
 none), so two targets overlapping on an LD frame lose one box there; and the truth handed out is
 that of the frame the feed yielded last, so frames must be processed one at a time, as the
 ablation does (a reader that decodes ahead would hand out a later frame's truth).
@@ -60,8 +60,8 @@ class GroundTruthFeed:
     """The ground truth of the frame being played, for the oracle detectors to hand out.
 
     :meth:`play` wraps a sequence's frames and sets :attr:`boxes` before each frame is yielded,
-    so every pipeline that processes that frame (the ablation interleaves four) sees its truth;
-    every pipeline must be done with a frame before the next one is drawn (no read-ahead).
+    so every GL-DT system that processes that frame (the ablation interleaves four) sees its truth;
+    every system must be done with a frame before the next one is drawn (no read-ahead).
     """
 
     def __init__(self) -> None:
@@ -94,8 +94,8 @@ class OracleGlobalDetector:
         self, previous_bgr: np.ndarray | None, current_bgr: np.ndarray, carry: Any = None
     ) -> tuple[np.ndarray, Any]:
         """As the real ``detect_pair``, with the real carry, so feature reuse costs what it costs
-        (a detector without ``detect_pair`` runs ``detect`` and carries nothing, as the pipeline
-        would run it)."""
+        (a detector without ``detect_pair`` runs ``detect`` and carries nothing, as the GL-DT
+        system would run it)."""
         detect_pair = getattr(self.detector, "detect_pair", None)
         if detect_pair is None:
             self.detector.detect(previous_bgr, current_bgr)
@@ -108,7 +108,7 @@ class OracleLocalDetector:
     """Runs ``detector`` on the ROIs for its time, returns the truth inside them as ``(N, 7)``.
 
     A target belongs to the first ROI that holds its centre (the real detector reports a target
-    seen by two overlapping ROIs twice, and the pipeline merges the two; one copy is the merged
+    seen by two overlapping ROIs twice, and the GL-DT system merges the two; one copy is the merged
     result); a target in no ROI is not seen, as it would not be by the real local detector.
     """
 

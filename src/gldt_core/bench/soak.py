@@ -8,7 +8,7 @@ identities instead of seeing every target teleport at each loop. Each frame is d
 like a camera or bag frame would be.
 
 Real time works like a ROS subscriber with a queue of one: frame ``k`` becomes available at
-``k / fps`` seconds after the start; when the pipeline finishes a frame it takes the newest
+``k / fps`` seconds after the start; when the system finishes a frame it takes the newest
 available one, and every frame that arrived meanwhile and was overtaken counts as *dropped*.
 Processed + dropped = frames the camera delivered.
 
@@ -25,13 +25,17 @@ ratio of the frame period (the peer every number is compared against: >1 means i
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from gldt_core.system.gldt_system import GLDTSystem
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``gldt bench soak``."""
     parser = subparsers.add_parser(
         "soak",
-        help="long real-time replay through the pipeline: memory growth, track table, dropped frames",
+        help="long real-time replay through the GL-DT system: memory growth, track table, dropped frames",
         description="Replay a looped synthetic 1080p scene through GLDTSystem at a fixed rate and "
         "report resident memory (start/end/growth), track-table size and processed/dropped frames.",
     )
@@ -50,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--tracker", choices=("jptrack", "bytetrack"), default=None, help="tracker (default: the config's, jptrack)"
     )
-    parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration (defaults: Table I)")
+    parser.add_argument("--config", metavar="CFG.yaml", help="GL-DT system configuration (defaults: Table I)")
     parser.add_argument(
         "--sample-every",
         type=float,
@@ -104,8 +108,8 @@ def ping_pong(k: int, n: int) -> int:
     return phase if phase < n else period - phase
 
 
-def _build_pipeline(args: argparse.Namespace):
-    """``(pipeline, oracle or None, detector description)``."""
+def _build_system(args: argparse.Namespace) -> tuple[GLDTSystem, OracleDetectors | None, str]:
+    """``(system, oracle or None, detector description)``."""
     from gldt_core.system.config import load_config
     from gldt_core.system.gldt_system import GLDTSystem
 
@@ -152,7 +156,7 @@ def handle_soak(args: argparse.Namespace) -> int:
     size = parse_size(args.size)
     process = psutil.Process()
 
-    pipeline, oracle, detector_note = _build_pipeline(args)
+    system, oracle, detector_note = _build_system(args)
     renderer = SceneRenderer(SceneSpec(seed=args.seed, frames=args.loop_frames, size=size, targets=args.targets))
     encoded, truth = [], []
     for k in range(args.loop_frames):
@@ -191,14 +195,15 @@ def handle_soak(args: argparse.Namespace) -> int:
         scene_frame = ping_pong(newest, args.loop_frames)
         begin = time.perf_counter()
         frame = cv2.imdecode(encoded[scene_frame], cv2.IMREAD_COLOR)
+        assert frame is not None, "the soak decodes the JPEGs it encoded itself"
         if oracle is not None:
             oracle.rows = truth[scene_frame]
-        tracks = pipeline.process(frame, newest * period)
+        tracks = system.process(frame, newest * period)
         if len(tracks):
             max_id = max(max_id, int(tracks[:, 4].max()))
         busy += time.perf_counter() - begin
         processed += 1
-        max_tracks = max(max_tracks, len(getattr(pipeline.tracker, "tracks", ())))
+        max_tracks = max(max_tracks, len(getattr(system.tracker, "tracks", ())))
         if rss_start is None:
             rss_start = process.memory_info().rss
             samples.append((now, rss_start))
@@ -216,24 +221,24 @@ def handle_soak(args: argparse.Namespace) -> int:
     warm = next((rss for t, rss in samples if t >= 0.1 * duration), rss_start)
     growth = 100.0 * (rss_end - rss_start) / rss_start
     growth_warm = 100.0 * (rss_end - warm) / warm
-    tracks_now = len(getattr(pipeline.tracker, "tracks", ()))
+    tracks_now = len(getattr(system.tracker, "tracks", ()))
     cost_ms = 1000.0 * busy / max(processed, 1)
     load = cost_ms / (1000.0 * period)
-    state = pipeline.state
+    state = system.state
     mib = 1024.0 * 1024.0
 
     print(
         f"gldt bench soak: {args.minutes:g} min at {args.fps:g} Hz, {size[0]}x{size[1]}, "
         f"{args.loop_frames}-frame scene (seed {args.seed}) played ping-pong; detectors: {detector_note}; "
-        f"tracker: {pipeline.config.tracker.name}"
+        f"tracker: {system.config.tracker.name}"
     )
     print(
         f"  frames: {delivered} delivered, {processed} processed, {dropped} dropped "
         f"({100.0 * dropped / max(delivered, 1):.1f} %), {state.reinitialisations} re-initialisations, "
-        f"GD on {pipeline.global_share:.0%} of processed frames"
+        f"GD on {system.global_share:.0%} of processed frames"
     )
     print(
-        f"  per-frame cost {cost_ms:.1f} ms (decode + pipeline) = {load:.2f}x the {1000.0 * period:.1f} ms "
+        f"  per-frame cost {cost_ms:.1f} ms (decode + system) = {load:.2f}x the {1000.0 * period:.1f} ms "
         f"frame period ({'keeps up' if load <= 1.0 else 'cannot keep up: frames are dropped'})"
     )
     print(
@@ -255,12 +260,12 @@ def handle_soak(args: argparse.Namespace) -> int:
             "loop_frames": args.loop_frames,
             "seed": args.seed,
             "detectors": detector_note,
-            "tracker": pipeline.config.tracker.name,
+            "tracker": system.config.tracker.name,
             "frames_delivered": delivered,
             "frames_processed": processed,
             "frames_dropped": dropped,
             "reinitialisations": state.reinitialisations,
-            "global_share": pipeline.global_share,
+            "global_share": system.global_share,
             "cost_ms_per_frame": cost_ms,
             "load": load,
             "rss_setup_bytes": rss_setup,

@@ -1,7 +1,7 @@
 """``gldt bench thresholds``: choose the detector and tracker score thresholds on held-out clips.
 
-The shipped detectors are small and under-confident: on the Halmstad validation clips AM-YOLO
-scores most drones it finds 0.1-0.3. Which of those boxes reach the tracker (the detector's
+The shipped detectors are small and under-confident: AM-YOLO scores most drones it finds well
+below the 0.5 the trackers' defaults assume. Which of those boxes reach the tracker (the detector's
 ``score_threshold``) and which may start or extend a track at the first association stage (the
 tracker's high threshold ``t_h`` / ``track_thresh`` and its new-track threshold) decides whether
 the GL-DT schedule ever gets a stable track to hand to the local detector. This benchmark runs
@@ -25,7 +25,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-#: The grid printed by default: the pipeline's shipped pair first (the peer), then the pairs
+#: The grid printed by default: the GL-DT system's shipped pair first (the peer), then the pairs
 #: around it that the choice in ``SHIPPED_DETECTOR_SCORES`` was made from.
 DEFAULT_GRID = "0.1:0.25,0.25:0.3,0.1:0.3,0.15:0.25,0.1:0.2"
 
@@ -97,10 +97,10 @@ def sweep(
         frames = global_frames = seconds = 0.0
         false_boxes = other_frames = 0
         for sequence in [*drone_sequences, *other_sequences]:
-            pipeline = GLDTSystem(
+            system = GLDTSystem(
                 config, global_detector=global_detector, local_detector=local_detector, tracker=build_tracker(config)
             )
-            result = run_frames(pipeline, sequence)
+            result = run_frames(system, sequence)
             if any(sequence is s for s in drone_sequences):
                 results[sequence.name] = (sequence.gt, result.rows)
                 frames += result.frames
@@ -156,7 +156,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--other-clips", type=int, default=4, help="validation bird/airplane clips (default 4)")
     parser.add_argument("--clip-frames", type=int, default=150, help="frames per clip (default 150)")
     parser.add_argument("--halmstad", default=None, help="Halmstad dataset root (default: the shared data)")
-    parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration the pairs are applied to")
+    parser.add_argument("--config", metavar="CFG.yaml", help="GL-DT system configuration the pairs are applied to")
     parser.add_argument("--json", metavar="OUT.json", help="also write the rows as JSON")
     parser.set_defaults(func=handle_thresholds)
 

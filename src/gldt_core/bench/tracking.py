@@ -18,6 +18,10 @@ time (mean, p99) at 3 and at 50 targets. BLAS is limited to one thread for the w
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import numpy as np
 
 DEFAULT_HALMSTAD = None  # resolved by gldt_core.paths.halmstad_root() when used
 
@@ -60,13 +64,13 @@ def _sim_source():
 class BoxmotPeer:
     """Adapter giving a boxmot tracker our ``update(dets, t)`` interface (ids shifted to >= 1)."""
 
-    def __init__(self, tracker: object, image_size: tuple[int, int]) -> None:
+    def __init__(self, tracker: Any, image_size: tuple[int, int]) -> None:
         import numpy as np
 
         self._tracker = tracker
         self._image = np.zeros((image_size[1], image_size[0], 3), dtype=np.uint8)
 
-    def update(self, dets, t):  # noqa: ANN001 - mirrors our tracker signature
+    def update(self, dets: np.ndarray, t: float) -> np.ndarray:
         import numpy as np
 
         table = np.zeros((len(dets), 6), dtype=np.float32)
@@ -144,7 +148,7 @@ def _run_accuracy(groups: dict, factories: dict, seed: int) -> dict:
     from gldt_core.track.runner import track_detection_rows
 
     streams = {}
-    for g_index, (group, seqs) in enumerate(groups.items()):
+    for g_index, seqs in enumerate(groups.values()):
         for s_index, (name, (gt, size)) in enumerate(seqs.items()):
             streams[name] = detections_from_gt(gt, seed + 7919 * g_index + s_index, size)
     results: dict = {}
@@ -169,9 +173,9 @@ def _run_accuracy(groups: dict, factories: dict, seed: int) -> dict:
     return results
 
 
-#: Timed runs per tracker and stream; the fastest run's mean and p99 are reported. The same
-#: tracker on the same stream measured 0.67-1.1 ms per frame from one run to the next on a shared
-#: 2-core VM (other tenants), so the fastest of several is the estimate of its own cost.
+#: Timed runs per tracker and stream; the fastest run's mean and p99 are reported. On a shared
+#: machine (other tenants) the same tracker on the same stream takes noticeably different times
+#: from one run to the next, so the fastest of several is the estimate of its own cost.
 SPEED_REPEATS = 5
 
 
@@ -195,6 +199,7 @@ def _run_speed(factories: dict, frames: int, seed: int) -> tuple[dict, str]:
                 arr = np.asarray(timings) * 1000.0
                 run = (float(arr.mean()), float(np.percentile(arr, 99)))
                 best = run if best is None or run[0] < best[0] else best
+            assert best is not None, "SPEED_REPEATS >= 1"
             speed[targets][name] = {"mean_ms": best[0], "p99_ms": best[1]}
     return speed, description
 
@@ -219,7 +224,9 @@ def _kalman_microbench() -> dict:
         ours = [ConstantVelocityKalman(b) for b in boxes]
         dts = np.full(n, 1 / 30)
 
-        def step_ours() -> None:
+        def step_ours(
+            ours: list[ConstantVelocityKalman] = ours, dts: np.ndarray = dts, boxes: np.ndarray = boxes
+        ) -> None:
             predict_many(ours, dts)
             update_many(ours, boxes)
 
@@ -234,7 +241,7 @@ def _kalman_microbench() -> dict:
             ref.x = f.mean.copy().reshape(8, 1)
             refs.append((ref, f))
 
-        def step_filterpy() -> None:
+        def step_filterpy(refs: list[tuple[Any, ConstantVelocityKalman]] = refs, boxes: np.ndarray = boxes) -> None:
             for (ref, f), z in zip(refs, boxes):
                 fm, q = f.transition(1 / 30)
                 ref.F = fm

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
     source = open_source(args.source, gt=args.gt)
     stop = None if args.max_frames is None else args.start + args.max_frames
 
-    def renumbered() -> itertools.islice[Frame]:
+    def renumbered() -> Iterator[Frame]:
         for frame in itertools.islice(source, args.start, stop):
             rows = frame.ground_truth.copy()
             index = frame.index - args.start

@@ -1,6 +1,6 @@
 """``gldt demo`` (``make demo``): GL-DT end to end on the bundled sample bags, offline and through the ROS graph.
 
-1. Offline (``gldt run``): the pipeline runs on each sample bag and writes MOTChallenge tracks,
+1. Offline (``gldt run``): the GL-DT system runs on each sample bag and writes MOTChallenge tracks,
    an overlay video (boxes, ids, GD/LD mode, ROIs) and a plot of mode and track count per frame
    to ``out/demo/<bag>/``; it prints FPS, the share of global-detection frames, where the time
    went, and MOTA / IDF1 / HOTA against the bag's ground truth.
@@ -27,7 +27,7 @@ from gldt_core.paths import REPO_ROOT as REPO
 #: detectors' known limit rather than as a broken install.
 NO_TRACKS_NOTE = (
     "demo: no tracks on this bag, as expected for a synthetic one: the shipped detectors learned the "
-    'real Halmstad clips\' drones and miss the small synthetic ones (README, "Results so far", #6)'
+    "real Halmstad clips' drones and miss the small synthetic ones (issue #6; docs/experiment-log.md)"
 )
 #: Said when any other bag gives no tracks.
 NO_TRACKS_ELSEWHERE = "demo: no tracks on this bag; overlay.mp4 shows each frame's mode and ROIs"

@@ -52,7 +52,7 @@ def _run(args: argparse.Namespace) -> int:
         iter_video_frames(args.video), desc=f"detect ({args.detector})", unit="frame", disable=args.no_progress
     )
     roi = int(getattr(detector, "card", {}).get("roi_side", 300))
-    rows = detect_frames(frames, detector, args.detector, roi_side=roi)
+    rows = detect_frames(frames, detector, roi_side=roi)
     if args.classes == "drone":
         rows = rows[rows[:, 7] == DRONE_CLASS_ID]
     rows[:, 7] = -1  # MOTChallenge detection files carry -1 in the last three columns

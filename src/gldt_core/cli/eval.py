@@ -73,7 +73,7 @@ def find_sequences(gt: str, pred: str) -> dict[str, tuple[str, str]]:
     return sequences
 
 
-def format_table(per_sequence: dict[str, dict], combined: dict) -> str:
+def format_table(per_sequence: dict[str, dict[str, float]], combined: dict[str, float]) -> str:
     """Fixed-width table: one row per sequence and a COMBINED row; ratios in percent."""
     names = list(per_sequence) + ["COMBINED"]
     width = max(12, max(len(n) for n in names))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -40,14 +41,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--rewrite-windows",
         action="store_true",
-        help="rewrite an exported .onnx's 6-D STFF window permutes as 4-D ones (same outputs, checked; faster in onnxruntime; no torch needed)",
+        help=(
+            "rewrite an exported .onnx's 6-D STFF window permutes as 4-D ones "
+            "(same outputs, checked; faster in onnxruntime; no torch needed)"
+        ),
     )
     parser.add_argument(
         "--feature-reuse",
         action="store_true",
         help=(
             "split an exported AM-YOLO .onnx into NAME.features.onnx and NAME.reuse.onnx next to it, so a stream of "
-            "GD frames computes the shared backbone's first stages once per frame (same outputs, checked; no torch needed)"
+            "GD frames computes the shared backbone's first stages once per frame "
+            "(same outputs, checked; no torch needed)"
         ),
     )
     parser.set_defaults(func=_run)
@@ -64,8 +69,9 @@ def _write_feature_reuse(model: Path) -> None:
 
     result = write_feature_reuse(model)
     print(
-        f"wrote {result.features_model.name} and {result.reuse_model.name} next to {model}: features {result.split_tensor!r} "
-        f"({result.channels} channels, stride {result.stride}) reused across GD frames; outputs within {result.max_abs_diff:.1e}"
+        f"wrote {result.features_model.name} and {result.reuse_model.name} next to {model}: "
+        f"features {result.split_tensor!r} ({result.channels} channels, stride {result.stride}) "
+        f"reused across GD frames; outputs within {result.max_abs_diff:.1e}"
     )
 
 
@@ -88,13 +94,12 @@ def _refresh_or_drop_split_pair(model: Path) -> None:
         for path in stale:
             path.unlink()
         print(
-            f"removed {' and '.join(p.name for p in stale)}: split from the file {model} replaced, and the new one cannot be split ({error})"
+            f"removed {' and '.join(p.name for p in stale)}: split from the file {model} replaced, "
+            f"and the new one cannot be split ({error})"
         )
 
 
 def _run(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     modes = [
         flag
         for flag, on in (
@@ -113,7 +118,8 @@ def _run(args: argparse.Namespace) -> int:
             raise ValueError(f"--feature-reuse splits an exported .onnx model, got {args.checkpoint}")
         if args.out is not None:
             raise ValueError(
-                "--feature-reuse writes NAME.features.onnx and NAME.reuse.onnx next to the model (where the runtime looks); drop --out"
+                "--feature-reuse writes NAME.features.onnx and NAME.reuse.onnx next to the model "
+                "(where the runtime looks); drop --out"
             )
         _write_feature_reuse(Path(args.checkpoint))
         return 0
@@ -194,7 +200,8 @@ def _run(args: argparse.Namespace) -> int:
             )
         )
     print(
-        f"wrote {out} ({card['size_bytes'] / 1e6:.2f} MB) and {out.with_suffix('.json')}; torch vs onnxruntime max |diff| {max(diffs):.2e}"
+        f"wrote {out} ({card['size_bytes'] / 1e6:.2f} MB) and {out.with_suffix('.json')}; "
+        f"torch vs onnxruntime max |diff| {max(diffs):.2e}"
     )
     if task == "global" and model.spec.stff_levels:
         _write_feature_reuse(out)

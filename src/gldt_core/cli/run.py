@@ -19,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "run",
         help="detect and track drones in a video / image folder / ROS 2 bag",
-        description="Run the GL-DT pipeline (GD/LD scheduler + tracker) over a recording and write "
+        description="Run the GL-DT system (GD/LD scheduler + tracker) over a recording and write "
         "MOTChallenge tracks (frame,id,x,y,w,h,score,-1,-1,-1).",
     )
     source = parser.add_mutually_exclusive_group(required=True)
@@ -31,7 +31,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", metavar="TRACKS.txt", required=True, help="MOTChallenge tracks to write")
     parser.add_argument("--render", metavar="OUT.mp4", help="also write an overlay video (boxes, ids, mode, ROIs)")
     parser.add_argument("--plot", metavar="OUT.png", help="also write a plot of the mode and track count per frame")
-    parser.add_argument("--config", metavar="CFG.yaml", help="pipeline configuration (defaults: paper Table I)")
+    parser.add_argument("--config", metavar="CFG.yaml", help="GL-DT system configuration (defaults: paper Table I)")
     parser.add_argument("--gt", metavar="GT.txt", help="ground truth for a video; prints MOTA/IDF1/HOTA at the end")
     parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -40,13 +40,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=int,
         default=2,
         metavar="N",
-        help="read and decode up to N frames ahead in a background thread (default 2; 0: decode inline, one frame at a time)",
+        help="read and decode up to N frames ahead in a background thread "
+        "(default 2; 0: decode inline, one frame at a time)",
     )
     parser.set_defaults(func=handle_run)
 
 
 def handle_run(args: argparse.Namespace) -> int:
-    """Run the pipeline over the chosen source; returns 0 on success."""
+    """Run the GL-DT system over the chosen source; returns 0 on success."""
     import logging
     import sys
     from pathlib import Path
@@ -54,6 +55,7 @@ def handle_run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from gldt_core.cli import CliError
+    from gldt_core.io.frame import Frame
     from gldt_core.io.mot import read_mot, write_mot
     from gldt_core.system.config import load_config
     from gldt_core.system.gldt_system import GLDTSystem
@@ -73,14 +75,14 @@ def handle_run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"ground truth not found: {args.gt}")
 
     config = load_config(args.config)
-    pipeline = GLDTSystem(config)  # loads the models now: a bad model file fails here
+    system = GLDTSystem(config)  # loads the models now: a bad model file fails here
 
     from gldt_core.io.sources import open_source
 
     source = open_source(input_text, gt=args.gt)
     fps = float(getattr(source, "fps", 0.0) or 30.0)
     try:
-        total = len(source)  # type: ignore[arg-type]
+        total = len(source)
     except TypeError:
         total = None
     if args.max_frames is not None and total is not None:
@@ -93,19 +95,20 @@ def handle_run(args: argparse.Namespace) -> int:
 
         progress = tqdm(total=total, unit="frame", desc="gldt run", file=sys.stderr, leave=False)
 
-    def on_frame(frame, tracks) -> None:
+    def on_frame(frame: Frame, tracks: np.ndarray) -> None:
         if writer is not None:
-            with pipeline.timer.stage("render"):
-                plan = pipeline.last_plan
+            with system.timer.stage("render"):
+                plan = system.last_plan
+                assert plan is not None, "on_frame runs after the frame was processed"
                 writer.write(frame.image, tracks, plan.mode.value, plan.rois, int(frame.index) + 1)
         if progress is not None:
             progress.update(1)
-            progress.set_postfix_str(pipeline.state.mode.value, refresh=False)
+            progress.set_postfix_str(system.state.mode.value, refresh=False)
 
     completed = False
     try:
         result = run_frames(
-            pipeline,
+            system,
             source,
             max_frames=args.max_frames,
             on_frame=on_frame,
@@ -118,9 +121,7 @@ def handle_run(args: argparse.Namespace) -> int:
             progress.close()
         if writer is not None:
             writer.close(keep=completed)
-        close = getattr(source, "close", None)
-        if callable(close):
-            close()
+        source.close()
 
     if result.frames == 0:
         raise CliError(f"{input_path}: no frames could be read")
@@ -134,10 +135,11 @@ def handle_run(args: argparse.Namespace) -> int:
         f"{track_ids} track ids -> {args.out}"
         + (f" (re-initialised {result.reinitialisations}x)" if result.reinitialisations else "")
     )
-    print("gldt run: time per stage: " + pipeline.timer.format(result.frames))
+    print("gldt run: time per stage: " + system.timer.format(result.frames))
     if result.prefetch_ms is not None:
         print(
-            f"gldt run: frames were read and decoded ahead in a background thread ({result.prefetch_ms:.1f} ms/frame there); "
+            "gldt run: frames were read and decoded ahead in a background thread "
+            f"({result.prefetch_ms:.1f} ms/frame there); "
             "'decode' above is what the loop still waited for (--prefetch 0 decodes inline)"
         )
 

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from gldt_core.sim.spec import SceneSpec
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -52,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=run)
 
 
-def build_spec(args: argparse.Namespace) -> object:
+def build_spec(args: argparse.Namespace) -> SceneSpec:
     """The scene spec from the command-line options (validated by SceneSpec)."""
     from gldt_core.sim.spec import SceneSpec, parse_range, parse_size
 
@@ -94,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.jpeg_quality <= 100:
         raise CliError(f"--jpeg-quality must be in 1..100, got {args.jpeg_quality}")
     spec = build_spec(args)
-    renderer = SceneRenderer(spec)  # type: ignore[arg-type]
+    renderer = SceneRenderer(spec)
     if args.out is not None:
         summary = write_mot_sequence(renderer, Path(args.out), jpeg_quality=args.jpeg_quality, overwrite=args.force)
         print(f"wrote {summary}")
@@ -122,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         elif args.out is not None:
             preview_path = Path(args.out) / "preview.png"
         else:
-            preview_path = Path(f"synth-preview-seed{spec.seed}.png")  # type: ignore[attr-defined]
+            preview_path = Path(f"synth-preview-seed{spec.seed}.png")
         if not preview_path.parent.is_dir():
             raise FileNotFoundError(f"preview folder {preview_path.parent} does not exist")
         sheet = scene_preview(renderer)

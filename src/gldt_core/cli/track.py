@@ -48,6 +48,7 @@ def run_track(args: argparse.Namespace) -> int:
         raise ValueError(f"--fps must be a positive number, got {args.fps}")
     rows = read_mot(args.dets)
     size = (int(args.image_size[0]), int(args.image_size[1]))
+    tracker: ByteTrack | JPTrack
     if args.tracker == "bytetrack":
         tracker = ByteTrack(ByteTrackConfig(image_size=size))
     else:

@@ -9,7 +9,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "train",
         help="train the global (AM-YOLO) or local detector from a YAML config (needs torch)",
-        description="Train a detector. Writes config.yaml, log.csv, curves.png, last.pt and best.pt to the run directory.",
+        description="Train a detector. Writes config.yaml, log.csv, curves.png, last.pt and best.pt "
+        "to the run directory.",
     )
     parser.add_argument("task", choices=("global", "local"), help="which detector to train")
     parser.add_argument("--config", required=True, help="training YAML (see src/gldt_core/configs/)")

@@ -4,9 +4,9 @@
 ``NAME.onnx``: ``NAME.features.onnx`` (a frame -> the features up to STFF's first level) and
 ``NAME.reuse.onnx`` (current frame + those features of the previous frame -> detections and the
 current frame's features). Their outputs equal the original model's (checked when written), so
-:class:`~gldt_core.detect.runtime.GlobalDetector` uses them whenever they are there and were made
-from that very file (the features model's metadata holds both files' SHA-256). A stream of GD
-frames then runs the stem and the stride-4 stage once per frame instead of twice.
+:class:`~gldt_core.detect.global_detector.GlobalDetector` uses them whenever they are there and
+were made from that very file (the features model's metadata holds both files' SHA-256). A stream
+of GD frames then runs the stem and the stride-4 stage once per frame instead of twice.
 
 No onnx and no torch here: this only opens and runs the two files with onnxruntime.
 """
@@ -18,9 +18,11 @@ import json
 import logging
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
+
+from gldt_core.detect.session import DetectorConfigError, open_session
 
 LOG = logging.getLogger("gldt.detect")
 
@@ -56,7 +58,7 @@ class FeatureReuse:
         self.stride = int(stride)
         self.source = source
 
-    def accepts(self, features: np.ndarray | None, input_height: int, input_width: int) -> bool:
+    def accepts(self, features: np.ndarray | None, input_height: int, input_width: int) -> TypeGuard[np.ndarray]:
         """Whether ``features`` can stand for a previous frame of this network input size."""
         expected = (1, self.channels, input_height // self.stride, input_width // self.stride)
         return features is not None and features.shape == expected and features.dtype == np.float32
@@ -87,8 +89,6 @@ def load_feature_reuse(
     only slower); True requires it (such files raise :class:`DetectorConfigError`); False never
     loads it.
     """
-    from gldt_core.detect.runtime import DetectorConfigError, open_session
-
     if wanted is False:
         return None
     features_file, reuse_file = features_path(model_path), reuse_path(model_path)
@@ -101,10 +101,12 @@ def load_feature_reuse(
             )
         return None
 
-    def unusable(problem: str) -> None:
+    def unusable(problem: str) -> FeatureReuse | None:
+        """Raise if the pair was required; else warn and use none (the full model runs)."""
         if wanted:
             raise DetectorConfigError(f"{model_path}: {problem}; {regenerate}")
         LOG.warning("%s: %s; running the full model on every frame pair (%s)", model_path, problem, regenerate)
+        return None
 
     try:
         features_session, _ = open_session(

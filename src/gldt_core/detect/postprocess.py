@@ -1,8 +1,10 @@
 """Pre- and post-processing around the ONNX detectors, in numpy/OpenCV only (no torch).
 
 The exported models output ``(B, 4 + nc, A)``: xyxy boxes normalised to the input size and
-per-class sigmoid scores. Everything needed to turn that into full-frame detections lives here so that training
-validation, the runtime wrappers and the benchmark all decode the same way.
+per-class sigmoid scores. Everything needed to turn that into full-frame detections lives here so
+that training validation (:mod:`gldt_core.training.train`), the runtime detectors
+(:mod:`gldt_core.detect.global_detector`, :mod:`gldt_core.detect.local_detector`) and the
+benchmarks all decode the same way.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ class Letterbox:
 
 
 def rect_input_size(frame_w: int, frame_h: int, long_side: int, multiple: int) -> tuple[int, int]:
-    """Smallest ``(w, h)`` that holds the frame scaled so its long side is ``long_side``, both sides multiples of ``multiple``."""
+    """Smallest ``(w, h)`` that holds the frame scaled so its long side is ``long_side``, both sides
+    multiples of ``multiple``."""
     if frame_w <= 0 or frame_h <= 0:
         raise ValueError(f"frame size must be positive, got {frame_w}x{frame_h}")
     scale = long_side / max(frame_w, frame_h)
@@ -45,8 +48,8 @@ def letterbox(image: np.ndarray, input_w: int, input_h: int) -> tuple[np.ndarray
     if (new_w, new_h) != (w, h):
         # Area averaging only for strong reductions (a 1080p frame to 640 wide, where it avoids
         # aliasing and has an integer-ratio fast path). For mild ones, such as a 300 px ROI to the
-        # local model's 256, INTER_AREA costs ~1.2 ms per crop against ~0.1 ms for bilinear, and
-        # bilinear is what training saw (cv2.warpAffine has no area mode and falls back to it).
+        # local model's 256, INTER_AREA costs an order of magnitude more than bilinear per crop,
+        # and bilinear is what training saw (cv2.warpAffine has no area mode and falls back to it).
         interp = cv2.INTER_AREA if scale < 0.5 else cv2.INTER_LINEAR
         image = cv2.resize(image, (new_w, new_h), interpolation=interp)
     pad_x, pad_y = (input_w - new_w) // 2, (input_h - new_h) // 2
@@ -117,8 +120,9 @@ def decode_output(
     ``channels`` (class indices) restricts the question to those classes: each anchor keeps its
     best class *among them*, scored by that class's own score. Why: a caller that tracks drones
     asks "is there a drone here?", and the answer is the drone score, whether or not a bird score
-    is higher at the same anchor. Asked over every class, the shipped AM-YOLO labels about one
-    held-out drone in five a bird (``gldt bench detection``, "where the drones went").
+    is higher at the same anchor. Asked over every class, a model labels some drones birds and
+    they are lost to the tracker (``gldt bench detection`` counts them under "where the drones
+    went"; see docs/experiment-log.md).
     """
     if output.ndim != 2 or output.shape[0] < 5:
         raise ValueError(f"model output must be (4 + nc, A), got shape {output.shape}")
@@ -164,3 +168,8 @@ def unletterbox(dets: np.ndarray, lb: Letterbox, frame_w: int, frame_h: int) -> 
     out[:, [0, 2]] = out[:, [0, 2]].clip(0, frame_w)
     out[:, [1, 3]] = out[:, [1, 3]].clip(0, frame_h)
     return out
+
+
+def drop_degenerate(detections: np.ndarray) -> np.ndarray:
+    """Remove boxes that clipping to the frame reduced to zero width or height."""
+    return detections[(detections[:, 2] > detections[:, 0]) & (detections[:, 3] > detections[:, 1])]

@@ -1,9 +1,9 @@
 """Run a detector over every frame of a video and collect MOTChallenge detection rows.
 
-Shared by ``gldt detect`` and ``gldt bench detection`` so both produce exactly the same boxes.
-The global detector sees each frame with its predecessor (the first frame is paired with
-itself). The local detector has no tracker to place ROIs here, so it covers the frame with
-overlapping ``roi x roi`` tiles (one batch per frame) and merges tile seams with NMS.
+Shared by ``gldt detect`` and ``gldt bench detection`` (:func:`frame_detections`) so both produce
+exactly the same boxes. The global detector sees each frame with its predecessor (the first frame
+is paired with itself). The local detector has no tracker to place ROIs here, so it covers the
+frame with overlapping ``roi x roi`` tiles (one batch per frame) and merges tile seams with NMS.
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
+from gldt_core.detect.global_detector import GlobalDetector
+from gldt_core.detect.local_detector import LocalDetector
 from gldt_core.detect.postprocess import nms
 
 
@@ -53,26 +55,32 @@ def tile_rois(frame_w: int, frame_h: int, side: int = 300, min_overlap: int = 40
     return np.asarray(rois, dtype=np.int64)
 
 
+def frame_detections(
+    detector: GlobalDetector | LocalDetector, previous: np.ndarray | None, frame: np.ndarray, roi_side: int = 300
+) -> np.ndarray:
+    """``(N, 6)`` ``[x1, y1, x2, y2, score, class_id]`` of one frame: the global detector on the pair
+    ``(previous, frame)`` (None: the frame with itself), the local one on ``roi_side`` tiles
+    covering the frame, tile seams merged by NMS."""
+    if isinstance(detector, GlobalDetector):
+        return detector.detect(previous, frame)
+    h, w = frame.shape[:2]
+    dets = detector.detect_rois(frame, tile_rois(w, h, roi_side))[:, :6]
+    return dets[nms(dets[:, :4], dets[:, 4], 0.5)] if len(dets) else dets
+
+
 def detect_frames(
     frames: Iterator[np.ndarray],
-    detector: object,
-    kind: str,
+    detector: GlobalDetector | LocalDetector,
     roi_side: int = 300,
     on_frame: Callable[[int, np.ndarray], None] | None = None,
 ) -> np.ndarray:
     """MOT rows ``frame, -1, x, y, w, h, score, class_id, -1, -1`` (frame 1-based) for all frames."""
-    if kind not in ("global", "local"):
-        raise ValueError(f"detector kind must be 'global' or 'local', got {kind!r}")
+    if not isinstance(detector, GlobalDetector | LocalDetector):
+        raise TypeError(f"detector must be a GlobalDetector or a LocalDetector, got {type(detector).__name__}")
     rows: list[np.ndarray] = []
     previous = None
     for index, frame in enumerate(frames, start=1):
-        if kind == "global":
-            dets = detector.detect(previous, frame)  # type: ignore[attr-defined]
-        else:
-            h, w = frame.shape[:2]
-            dets = detector.detect_rois(frame, tile_rois(w, h, roi_side))[:, :6]  # type: ignore[attr-defined]
-            if len(dets):
-                dets = dets[nms(dets[:, :4], dets[:, 4], 0.5)]
+        dets = frame_detections(detector, previous, frame, roi_side)
         previous = frame
         if on_frame is not None:
             on_frame(index, dets)

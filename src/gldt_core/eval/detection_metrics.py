@@ -79,7 +79,7 @@ def match(
             for prefer_ignored in (False, True):
                 for j in np.flatnonzero((~taken) & (ignore == prefer_ignored)):
                     if ious[i, j] >= best:
-                        best, best_j = ious[i, j], j
+                        best, best_j = ious[i, j], int(j)
                 if best_j >= 0:
                     break
             if best_j >= 0:

@@ -3,7 +3,7 @@
 Why our own code and not TrackEval at run time: TrackEval is a research tool that reads a fixed
 folder layout, prints its config and ships only as a test dependency here. The algorithms below
 follow its definitions step for step (same similarity, same Hungarian matchings, same eps
-handling), and ``tests/test_eval_trackeval_equality.py`` proves equality with TrackEval itself to
+handling), and ``tests/core/test_eval_trackeval_equality.py`` proves equality with TrackEval itself to
 1e-6 on sequences with empty frames, id reuse, distractors and no matches.
 
 Inputs are MOTChallenge ``(N, 10)`` arrays as returned by :func:`gldt_core.io.mot.read_mot`:
@@ -31,6 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
+from typing import TypedDict
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -525,13 +526,20 @@ def evaluate_sequence(
     )
 
 
+class ManyResult(TypedDict):
+    """What :func:`evaluate_many` returns: the combined metrics and each sequence's own."""
+
+    combined: dict[str, float]
+    per_sequence: dict[str, dict[str, float]]
+
+
 def evaluate_many(
     sequences: Mapping[str, tuple[np.ndarray, np.ndarray]],
     *,
     target_classes: Iterable[int] = DEFAULT_TARGET_CLASSES,
     distractor_classes: Iterable[int] = DEFAULT_DISTRACTOR_CLASSES,
     threshold: float = 0.5,
-) -> dict[str, object]:
+) -> ManyResult:
     """Evaluate ``{name: (gt_rows, pred_rows)}`` and combine them the way TrackEval does.
 
     Returns ``{"combined": metrics, "per_sequence": {name: metrics}}``.

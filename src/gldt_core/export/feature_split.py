@@ -4,7 +4,7 @@ AM-YOLO batches the previous and the current frame through one weight-shared bac
 them with STFF from the first fused level on. Up to that level the previous frame's features are
 the same tensor the *current* frame produced one GD frame earlier, so in a run of consecutive GD
 frames (the scheduler's N_g stretches, or every frame while nothing is tracked) recomputing them
-is wasted work: the stem and the stride-4 stage on a 640x384 frame, about a tenth of the model.
+is wasted work: the stem and the stride-4 stage, the backbone's highest-resolution layers.
 
 This rewrites the exported graph (no torch, no retraining) into two models written next to it:
 
@@ -156,7 +156,7 @@ def split_model(model: Any) -> tuple[Any, str]:
     )
     old_previous = next(i for i in graph.input if i.name == previous)
     graph.input.remove(old_previous)
-    shape = [1, "feature_channels", "feature_height", "feature_width"]
+    shape: list[str | int] = [1, "feature_channels", "feature_height", "feature_width"]
     graph.input.append(helper.make_tensor_value_info(PREVIOUS_FEATURES, TensorProto.FLOAT, shape))
     graph.output.append(helper.make_tensor_value_info(CURRENT_FEATURES, TensorProto.FLOAT, shape))
     return reuse, split

@@ -24,11 +24,11 @@ from typing import Any
 import numpy as np
 import torch
 
+from gldt_core.detect.session import CARD_KEY
 from gldt_core.training.data import CLASS_NAMES
 from gldt_core.training.models import Detector
 
 OPSET = 17
-CARD_KEY = "gldt_card"
 #: Model class index -> MOTChallenge class code (1 drone, 2 bird, 3 airplane).
 CLASS_IDS = (1, 2, 3)
 
@@ -86,7 +86,10 @@ def export_onnx(model: Detector, path: Path, width: int, height: int, card: dict
             "opset": OPSET,
             "inputs": names,
             "input_layout": "NCHW float32 RGB in [0, 1]",
-            "output": "detections (B, 4 + num_classes, anchors): x1, y1, x2, y2 normalised to the input width/height, then per-class scores",
+            "output": (
+                "detections (B, 4 + num_classes, anchors): "
+                "x1, y1, x2, y2 normalised to the input width/height, then per-class scores"
+            ),
             "box_format": "xyxy_normalized",
             "input_size": [width, height],
             "input_multiple": model.spec.input_multiple,

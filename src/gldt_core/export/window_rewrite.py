@@ -3,9 +3,9 @@
 STFF cuts each feature map into S x S windows and puts them back afterwards. Exports made before
 :func:`gldt_core.training.stff.window_partition` took its 4-D form hold each of these as one
 ``Reshape -> Transpose`` over a 6-D tensor, and onnxruntime's CPU Transpose moves a 6-D permute
-element by element: at the P2 level (16 channels, 160 x 96) each one took about 1.7 ms, more than
-the attention it feeds. The same permutation is an NHWC transpose plus a swap of contiguous
-``S*C`` blocks, both 4-D, which onnxruntime does at memory speed.
+element by element: at the P2 level (the largest feature map) that can cost more than the
+attention it feeds (docs/experiment-log.md). The same permutation is an NHWC transpose plus a swap
+of contiguous ``S*C`` blocks, both 4-D, which onnxruntime does at memory speed.
 
 The shipped models were trained, and their checkpoints are not in the repo, so instead of
 re-exporting from torch this rewrites the graph itself: each matched ``Transpose`` is replaced by
@@ -218,7 +218,10 @@ def rewrite_model_file(
         card = json.loads(card_path.read_text())
         card.update(
             {
-                "window_transposes": f"{count} 6-D window permutes rewritten as 4-D chains (gldt export --rewrite-windows); outputs within {diff:.1e} of the original",
+                "window_transposes": (
+                    f"{count} 6-D window permutes rewritten as 4-D chains (gldt export --rewrite-windows); "
+                    f"outputs within {diff:.1e} of the original"
+                ),
                 "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
                 "size_bytes": out.stat().st_size,
             }

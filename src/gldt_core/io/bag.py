@@ -1,9 +1,10 @@
 """Sample bags: rosbag2 (MCAP storage) with camera images, camera_info and ground truth.
 
-Written with ``rosbags`` and read with a strict streaming walk over the MCAP records (no ROS
-installation; see :class:`BagSource` for what happens with damaged files), messages (de)serialized
-with the Jazzy typestore plus the project's ``gldt_msgs`` types from
-:func:`gldt_core.io.ros_types.typestore`. Topics:
+Written with ``rosbags`` and read with :func:`gldt_core.io.mcap_file.read_mcap`, a strict streaming
+walk over the MCAP records (no ROS installation; see :class:`BagSource` for what happens with
+damaged files), messages (de)serialized with the Jazzy typestore plus the project's ``gldt_msgs``
+types from :func:`gldt_core.io.ros_types.typestore`. The graph's player reads bags raw through
+:func:`bag_messages`. Topics:
 
 - ``/camera/image_raw/compressed`` (``sensor_msgs/CompressedImage``, JPEG) or
   ``/camera/image_raw`` (``sensor_msgs/Image``, ``bgr8``),
@@ -20,9 +21,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
-import struct
 import tempfile
-import zlib
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from gldt_core.io.frame import Frame, FrameSource, empty_ground_truth
+from gldt_core.io.mcap_file import McapDamageError, McapMessage, read_mcap, summary_channel_types
 
 IMAGE_TOPIC = "/camera/image_raw"
 COMPRESSED_TOPIC = "/camera/image_raw/compressed"
@@ -207,210 +207,15 @@ def write_bag(
 
 # --------------------------------------------------------------------------- reading
 #
-# Bags are read with a strict, streaming walk over the MCAP records instead of rosbags' Reader:
-# that Reader needs the summary section at the end of the file (a recorder that was killed leaves
-# none) and reads every chunk up front, so one damaged byte made the whole recording unreadable,
-# and record framing damaged inside a chunk silently ended that chunk. Here every record length is
-# checked against what is left, so damage is found where it is, everything before it is still
-# read, and it is reported (never silently skipped). Messages are decoded with the project's
-# rosbags typestore.
+# Bags are read with the strict streaming walk of gldt_core.io.mcap_file rather than rosbags'
+# Reader: that Reader needs the summary section at the end of the file (a recorder that was killed
+# leaves none) and reads every chunk up front, so one damaged byte would make the whole recording
+# unreadable. Messages are decoded with the project's rosbags typestore.
 
 LOG = logging.getLogger("gldt.io.bag")
 
-_MCAP_MAGIC = b"\x89MCAP0\r\n"
-_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE, _OP_CHUNK, _OP_DATA_END, _OP_FOOTER = 0x03, 0x04, 0x05, 0x06, 0x0F, 0x02
-_MESSAGE_HEAD = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
-_IMAGE_TYPES = (IMAGE_TYPE, COMPRESSED_TYPE)
-
-
-class BagDamageError(Exception):
-    """An MCAP file damaged (truncated or corrupt) at byte ``offset``.
-
-    Kept on :attr:`BagSource.damage`; :class:`BagSource` reports it as a one-line ``ValueError``
-    once the frames before it have been yielded, so callers only ever see ValueError.
-    """
-
-    def __init__(self, path: Path, offset: int, reason: str) -> None:
-        super().__init__(f"{path}: {reason} (byte {offset})")
-        self.path = path
-        self.offset = offset
-        self.reason = reason
-
-
-@dataclass(frozen=True)
-class _Channel:
-    topic: str
-    msgtype: str
-    encoding: str
-
-
-@dataclass(frozen=True)
-class _RawMessage:
-    path: Path
-    offset: int
-    channel: _Channel
-    log_time: int
-    data: bytes
-
-
-class _Fields:
-    """Bounds-checked little-endian reads from one record body (MCAP's primitive types)."""
-
-    def __init__(self, body: bytes, what: str) -> None:
-        self.body, self.position, self.what = body, 0, what
-
-    def take(self, size: int) -> bytes:
-        if size < 0 or self.position + size > len(self.body):
-            raise ValueError(f"{self.what} record is shorter than its fields")
-        start, self.position = self.position, self.position + size
-        return self.body[start : self.position]
-
-    def integer(self, fmt: str) -> int:
-        value: int = struct.unpack("<" + fmt, self.take(struct.calcsize(fmt)))[0]
-        return value
-
-    def string(self) -> str:
-        try:
-            return self.take(self.integer("I")).decode("utf-8")
-        except UnicodeDecodeError:
-            raise ValueError(f"{self.what} record holds a string that is not UTF-8") from None
-
-
-def _decompress(compression: str, data: bytes, size: int) -> bytes:
-    if compression == "":
-        return data
-    if compression == "zstd":
-        import zstandard
-
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=size)
-    if compression == "lz4":
-        import lz4.frame
-
-        return bytes(lz4.frame.decompress(data))
-    raise ValueError(f"chunk compression {compression!r} is not supported (zstd, lz4 or none)")
-
-
-class _McapWalker:
-    """Every message of one MCAP file in file order; raises :class:`BagDamageError` at damage.
-
-    Stops at the DataEnd record: the summary section after it only indexes what was already read,
-    so a file cut inside its summary (or footer) loses nothing and is read in full.
-    """
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.schemas: dict[int, str] = {}
-        self.channels: dict[int, _Channel] = {}
-
-    def damage(self, offset: int, reason: str) -> BagDamageError:
-        return BagDamageError(self.path, offset, reason)
-
-    def messages(self) -> Iterator[_RawMessage]:
-        with self.path.open("rb") as stream:
-            size = os.fstat(stream.fileno()).st_size
-            if stream.read(len(_MCAP_MAGIC)) != _MCAP_MAGIC:
-                raise self.damage(0, "not an MCAP file (bad magic at the start)")
-            offset = len(_MCAP_MAGIC)
-            while True:
-                head = stream.read(9)
-                if len(head) < 9:
-                    raise self.damage(offset, "file ends before the data section does (truncated)")
-                opcode, length = struct.unpack("<BQ", head)
-                if offset + 9 + length > size:
-                    raise self.damage(
-                        offset, f"record of {length} bytes runs past the end of the file (truncated or corrupt)"
-                    )
-                body = stream.read(length)
-                if opcode in (_OP_DATA_END, _OP_FOOTER):
-                    return
-                try:
-                    if opcode == _OP_CHUNK:
-                        yield from self._chunk(body, offset)
-                    else:
-                        message = self._record(opcode, body, offset, chunk_times=None)
-                        if message is not None:
-                            yield message
-                except ValueError as error:
-                    raise self.damage(offset, str(error)) from None
-                offset += 9 + length
-
-    def _chunk(self, body: bytes, offset: int) -> Iterator[_RawMessage]:
-        fields = _Fields(body, "chunk")
-        start_time, end_time, uncompressed_size = fields.integer("Q"), fields.integer("Q"), fields.integer("Q")
-        crc, compression = fields.integer("I"), fields.string()
-        records_length = fields.integer("Q")
-        # Offsets inside the chunk are reported from the chunk's first record in the file (exact for
-        # uncompressed chunks) so that "byte N" points at the damage.
-        base = offset + 9 + fields.position
-        if records_length != len(body) - fields.position:
-            raise ValueError(
-                f"chunk says its records are {records_length} bytes, it holds {len(body) - fields.position}"
-            )
-        try:
-            records = _decompress(compression, fields.take(records_length), uncompressed_size)
-        except ValueError:
-            raise
-        except Exception as error:  # noqa: BLE001 - any codec failure is damage in this chunk
-            raise ValueError(f"chunk cannot be decompressed ({compression}: {error})") from None
-        if len(records) != uncompressed_size:
-            raise ValueError(f"chunk holds {len(records)} bytes, its header says {uncompressed_size}")
-        if crc and zlib.crc32(records) != crc:
-            raise ValueError("chunk CRC mismatch")
-        position = 0
-        while position < len(records):
-            if position + 9 > len(records):
-                raise self.damage(base + position, "chunk ends inside a record header")
-            opcode, length = struct.unpack_from("<BQ", records, position)
-            if opcode not in (_OP_SCHEMA, _OP_CHANNEL, _OP_MESSAGE):
-                raise self.damage(
-                    base + position,
-                    f"chunk holds a record of opcode 0x{opcode:02x}, "
-                    "not a schema, channel or message (corrupt framing)",
-                )
-            if position + 9 + length > len(records):
-                raise self.damage(
-                    base + position, f"chunk record of {length} bytes runs past the chunk end (corrupt framing)"
-                )
-            body_start = position + 9
-            try:
-                message = self._record(
-                    opcode,
-                    records[body_start : body_start + length],
-                    base + position,
-                    chunk_times=(start_time, end_time),
-                )
-            except ValueError as error:
-                raise self.damage(base + position, str(error)) from None
-            if message is not None:
-                yield message
-            position = body_start + length
-
-    def _record(self, opcode: int, body: bytes, offset: int, chunk_times: tuple[int, int] | None) -> _RawMessage | None:
-        if opcode == _OP_SCHEMA:
-            fields = _Fields(body, "schema")
-            schema_id, name = fields.integer("H"), fields.string()
-            self.schemas[schema_id] = name
-        elif opcode == _OP_CHANNEL:
-            fields = _Fields(body, "channel")
-            channel_id, schema_id = fields.integer("H"), fields.integer("H")
-            topic, encoding = fields.string(), fields.string()
-            if schema_id and schema_id not in self.schemas:
-                raise ValueError(f"channel {topic!r} refers to unknown schema {schema_id}")
-            self.channels[channel_id] = _Channel(topic, self.schemas.get(schema_id, ""), encoding)
-        elif opcode == _OP_MESSAGE:
-            if len(body) < _MESSAGE_HEAD.size:
-                raise ValueError(f"message record of {len(body)} bytes is shorter than its header")
-            channel_id, _, log_time, _ = _MESSAGE_HEAD.unpack_from(body)
-            channel = self.channels.get(channel_id)
-            if channel is None:
-                raise ValueError(f"message on unknown channel {channel_id} (corrupt record)")
-            if chunk_times is not None and chunk_times[1] and not chunk_times[0] <= log_time <= chunk_times[1]:
-                raise ValueError(
-                    f"message time {log_time} ns lies outside its chunk's "
-                    f"{chunk_times[0]}..{chunk_times[1]} ns (corrupt record)"
-                )
-            return _RawMessage(self.path, offset, channel, log_time, body[_MESSAGE_HEAD.size :])
-        return None  # indexes, metadata, attachments: not needed to read the frames
+#: The message types a bag's camera topic may carry.
+IMAGE_TYPES = frozenset({IMAGE_TYPE, COMPRESSED_TYPE})
 
 
 def _seconds(stamp: Any) -> float:
@@ -456,10 +261,13 @@ def _gt_rows(message: Any) -> np.ndarray:
     )
 
 
-def _bag_files(path: Path) -> list[Path]:
+def bag_files(path: str | os.PathLike[str]) -> list[Path]:
     """The MCAP files of a bag folder (in the order metadata.yaml lists them) or of a ``.mcap`` path."""
     import yaml
 
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"bag not found: {path}")
     if path.is_file():
         return [path]
     metadata_path = path / "metadata.yaml"
@@ -505,9 +313,7 @@ class BagSource(FrameSource):
         from gldt_core.io.ros_types import typestore
 
         self.path = Path(path)
-        if not self.path.exists():
-            raise FileNotFoundError(f"bag not found: {self.path}")
-        self._files = _bag_files(self.path)
+        self._files = bag_files(self.path)
         self._bag_dir = self.path.parent if self.path.is_file() else self.path
         self.name = self._bag_dir.name if self.path.is_dir() else self.path.stem
         self._store = typestore()
@@ -516,20 +322,20 @@ class BagSource(FrameSource):
         self._scan()
 
     # ---------------------------------------------------------------- opening
-    def _messages(self) -> Iterator[_RawMessage]:
+    def _messages(self) -> Iterator[McapMessage]:
         for file in self._files:
-            yield from _McapWalker(file).messages()
+            yield from read_mcap(file)
 
-    def _deserialize(self, raw: _RawMessage) -> Any:
+    def _deserialize(self, raw: McapMessage) -> Any:
         """The message, or ValueError naming file, topic and type when its bytes do not decode."""
         if raw.channel.encoding != "cdr":
-            raise ValueError(f"{raw.path}: {raw.channel.topic} uses message encoding {raw.channel.encoding!r}, not cdr")
+            raise ValueError(f"{raw.path}: {raw.topic} uses message encoding {raw.channel.encoding!r}, not cdr")
         try:
-            return self._store.deserialize_cdr(raw.data, raw.channel.msgtype)
+            return self._store.deserialize_cdr(raw.data, raw.msgtype)
         except Exception as error:  # noqa: BLE001 - rosbags raises several types on bad bytes
             raise ValueError(
-                f"{raw.path}: {raw.channel.topic} message at byte {raw.offset} is not a "
-                f"valid {raw.channel.msgtype} ({type(error).__name__}: {error})"
+                f"{raw.path}: {raw.topic} message at byte {raw.offset} is not a "
+                f"valid {raw.msgtype} ({type(error).__name__}: {error})"
             ) from None
 
     def _scan(self) -> None:
@@ -541,16 +347,16 @@ class BagSource(FrameSource):
         topics: set[str] = set()
         info_size: tuple[int, int] | None = None
         bad_k: str | None = None
-        self.damage: BagDamageError | None = None
+        self.damage: McapDamageError | None = None
         try:
             for raw in self._messages():
-                topic, msgtype = raw.channel.topic, raw.channel.msgtype
+                topic, msgtype = raw.topic, raw.msgtype
                 topics.add(topic)
                 if topic in image_logs:
                     image_types.setdefault(topic, msgtype)
-                    image_logs[topic].append(raw.log_time)
+                    image_logs[topic].append(raw.log_time_ns)
                     stamp = None
-                    if msgtype in _IMAGE_TYPES:
+                    if msgtype in IMAGE_TYPES:
                         try:
                             message = self._deserialize(raw)
                             stamp = int(round(_seconds(message.header.stamp) * 1e9))
@@ -580,7 +386,7 @@ class BagSource(FrameSource):
                             bad_k = bad_k or str(error)
                             continue
                         info_size = (int(message.width), int(message.height))
-        except BagDamageError as damage:
+        except McapDamageError as damage:
             self.damage = damage
         if bad_k is not None and self.camera_matrix is None:
             LOG.warning("%s: no usable camera_info (%s); the camera matrix is unknown", self._label, bad_k)
@@ -592,7 +398,7 @@ class BagSource(FrameSource):
                 f"{self._label}: no {IMAGE_TOPIC} or {COMPRESSED_TOPIC} messages (topics: {sorted(topics)})"
             )
         msgtype = image_types[self.image_topic]
-        if msgtype not in _IMAGE_TYPES:
+        if msgtype not in IMAGE_TYPES:
             raise ValueError(
                 f"{self._label}: topic {self.image_topic} carries {msgtype or 'an unknown type'}, "
                 f"not {IMAGE_TYPE} or {COMPRESSED_TYPE}"
@@ -635,14 +441,14 @@ class BagSource(FrameSource):
         index = -1
         try:
             for raw in self._messages():
-                if raw.channel.topic != self.image_topic:
+                if raw.topic != self.image_topic:
                     continue
                 if self.damage is not None and index + 1 >= self._count:
                     raise self.damage
                 index += 1
                 try:
                     message = self._deserialize(raw)
-                    image = _decode_image(message, raw.channel.msgtype)
+                    image = _decode_image(message, raw.msgtype)
                 except ValueError as error:  # one bad frame must not stop the node
                     reason = str(error).removeprefix(f"{raw.path}: ")
                     LOG.warning("%s: frame %d skipped: %s", raw.path, index, reason)
@@ -653,7 +459,7 @@ class BagSource(FrameSource):
                 if len(rows):
                     rows[:, 0] = index + 1
                 yield Frame(index=index, stamp=stamp, image=image, ground_truth=rows)
-        except BagDamageError:
+        except McapDamageError:
             raise ValueError(self._damage_text(index + 1)) from None
 
     @property
@@ -680,3 +486,29 @@ class BagSource(FrameSource):
 def read_bag_frames(path: str | os.PathLike[str]) -> Iterator[Frame]:
     """Yield the frames (image, stamp, ground truth) of a bag; see :class:`BagSource`."""
     yield from BagSource(path)
+
+
+def bag_messages(path: str | os.PathLike[str], *, log_time_order: bool = False) -> Iterator[McapMessage]:
+    """Every message of a bag, raw (CDR bytes), file after file; by log time within each file
+    with ``log_time_order`` (the order a player publishes them in).
+
+    A damaged file yields every message read before the damage, then ``ValueError`` naming the
+    file and the byte.
+    """
+    files = bag_files(path)
+    try:
+        for file in files:
+            yield from read_mcap(file, log_time_order=log_time_order)
+    except McapDamageError as damage:
+        raise ValueError(
+            f"bag {damage.path} is damaged after the messages already read: {damage.reason} (byte {damage.offset})"
+        ) from None
+
+
+def bag_channel_types(path: str | os.PathLike[str]) -> dict[str, str]:
+    """``topic -> pkg/msg/Name`` of every channel the bag's files list in their summaries (empty
+    for a file without a readable summary: its channels are then learnt while reading it)."""
+    types: dict[str, str] = {}
+    for file in bag_files(path):
+        types.update(summary_channel_types(file))
+    return types

@@ -56,7 +56,8 @@ class FrameSource(ABC):
         """All MOT rows (N, 10) of the sequence, sorted by frame."""
 
     def close(self) -> None:
-        """Release files or decoders (no-op by default)."""
+        """Release files or decoders; a source that holds none keeps this default, which does nothing."""
+        return None
 
     def __enter__(self) -> FrameSource:
         return self

@@ -14,12 +14,18 @@ from gldt_core.io.frame import Frame, FrameSource, empty_ground_truth, rows_by_f
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
 
 
+class _CaseKeepingParser(configparser.ConfigParser):
+    """A ``ConfigParser`` that keeps keys as written (``seqinfo.ini`` keys are camelCase)."""
+
+    def optionxform(self, optionstr: str) -> str:
+        return optionstr
+
+
 def read_seqinfo(path: Path) -> dict[str, str]:
     """The ``[Sequence]`` section of a ``seqinfo.ini`` (empty when the file is absent)."""
     if not path.is_file():
         return {}
-    parser = configparser.ConfigParser()
-    parser.optionxform = str  # keep camelCase keys
+    parser = _CaseKeepingParser()
     try:
         parser.read(path, encoding="utf-8")
     except configparser.Error as error:

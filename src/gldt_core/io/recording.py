@@ -1,8 +1,9 @@
 """Read what the ROS graph recorded (``pipeline --record OUT.mcap``) back into core arrays.
 
-The recording holds CDR messages of the graph's own types; they are decoded with the rosbags
-typestore (no ROS needed), so offline tools (``gldt eval``, the demo, the equivalence test) can
-compare the graph's ``/gldt/tracks`` with an offline run.
+The recording holds CDR messages of the graph's own types, read with
+:func:`gldt_core.io.mcap_file.read_mcap` and decoded with the rosbags typestore (no ROS needed), so
+offline tools (``gldt eval``, the demo, the equivalence test) can compare the graph's
+``/gldt/tracks`` with an offline run.
 """
 
 from __future__ import annotations
@@ -14,34 +15,32 @@ from typing import Any
 
 import numpy as np
 
+from gldt_core.io.mcap_file import McapDamageError, read_mcap
+
 TRACKS_TOPIC_SUFFIX = "gldt/tracks"
 
 
 def iter_recorded(path: str | os.PathLike[str], topic_suffix: str) -> Iterator[tuple[str, Any, int]]:
-    """Yield ``(topic, message, log_time_ns)`` for every message whose topic ends with ``topic_suffix``.
+    """Yield ``(topic, message, log_time_ns)`` for every message whose topic ends with ``topic_suffix``,
+    in the order they were recorded.
 
-    A recording cut short (the recorder was killed) yields every complete message before the
-    cut; anything else unreadable raises ``ValueError`` naming the file.
+    A recording cut short or damaged (the recorder was killed) yields every complete message
+    before the damage, then raises ``ValueError`` naming the file.
     """
-    from mcap.exceptions import McapError
-    from mcap.reader import make_reader
-
     from gldt_core.io.ros_types import typestore
 
     store = typestore()
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"recording not found: {path}")
-    with path.open("rb") as stream:
-        reader = make_reader(stream)
-        try:
-            for schema, channel, message in reader.iter_messages(log_time_order=False):
-                if not channel.topic.endswith(topic_suffix):
-                    continue
-                msgtype = schema.name if schema is not None else ""
-                yield channel.topic, store.deserialize_cdr(message.data, msgtype), message.log_time
-        except (McapError, EOFError) as error:
-            raise ValueError(f"recording {path} is damaged after the messages already read: {error}") from error
+    try:
+        for message in read_mcap(path):
+            if message.topic.endswith(topic_suffix):
+                yield message.topic, store.deserialize_cdr(message.data, message.msgtype), message.log_time_ns
+    except McapDamageError as damage:
+        raise ValueError(
+            f"recording {path} is damaged after the messages already read: {damage.reason} (byte {damage.offset})"
+        ) from None
 
 
 def recorded_track_rows(path: str | os.PathLike[str]) -> np.ndarray:

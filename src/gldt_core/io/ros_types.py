@@ -1,6 +1,7 @@
-"""ROS 2 message types for bag files, without a ROS installation.
+"""ROS 2 message types for bags and recordings, without a ROS installation.
 
-Bags are written and read with ``rosbags``, whose typestore knows the stock ROS 2 Jazzy types.
+Messages in MCAP files are (de)serialised with the ``rosbags`` typestore, which knows the stock
+ROS 2 Jazzy types; the schemas :class:`gldt_core.io.mcap_file.McapWriter` writes come from it too.
 This module adds the project's own ``gldt_msgs`` types, parsed from the very ``.msg`` files that
 ``colcon`` builds into the ROS package (``msg_defs/gldt_msgs/msg``), so the bag schema and the
 live topics can never drift apart.
@@ -20,8 +21,8 @@ MSG_DIR_ENV = "GLDT_MSG_DIR"
 def find_msg_dir() -> Path:
     """Locate ``msg_defs/gldt_msgs/msg``: ``$GLDT_MSG_DIR`` first, then above this source file.
 
-    The package is installed editable from the repository (the README's set-up does this), so
-    the message definitions are found next to the sources.
+    The package is installed editable from the repository, so the message definitions are found
+    next to the sources.
     """
     override = os.environ.get(MSG_DIR_ENV)
     if override:

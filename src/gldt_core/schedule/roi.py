@@ -6,7 +6,7 @@ targets while they drift apart, splits it once they are more than ``tau_d`` pixe
 keeps every target inside the central "safe zone" covering ``tau_s`` of the window's area.
 
 Everything here is a pure function of its arguments (no hidden state) so the same code runs in
-the offline pipeline and in the ROS scheduler node, and so it can be tested on geometry alone.
+the offline GL-DT system and in the ROS scheduler node, and so it can be tested on geometry alone.
 The only memory the rules need - which targets shared a window last frame, so a shared window
 is expanded instead of dropped when they separate - is passed in and returned explicitly as
 ``groups`` (tuples of track ids).
@@ -25,10 +25,10 @@ Conventions and decisions:
   ``tau_s`` of the ROI's). A window is made just large enough (never below ``roi_size``) that the
   bounding box of its targets fits in its safe zone. Its edges are then rounded outwards to whole
   pixels, so a window whose centre is not a whole pixel is ``roi_size + 1`` wide. Why not exactly
-  ``roi_size``: rounding the centre instead moves the crop by up to half a pixel, and on the
-  synthetic MOT-FLY-like test scene that alone moved GD+LD+JPTrack from 31.1 to 17.1 MOTA (150
-  frames, balanced pair): the local detector's boxes on 3-5 px drones depend on the crop's
-  sub-pixel placement, and the shipped layout is the one the results were measured with.
+  ``roi_size``: rounding the centre instead moves the crop by up to half a pixel, and the local
+  detector's boxes on 3-5 px drones depend on the crop's sub-pixel placement, enough to change
+  the tracking scores of a whole scene (``docs/experiment-log.md``); the shipped layout is the
+  one the results were measured with.
 * Frame edges: a window is shifted (not shrunk) to lie inside the frame, so a target at the edge
   still gets a full-size window; the safe zone then cannot be honoured on the edge side - there is
   nothing to see beyond the frame. A frame smaller than the window gives a window of frame size.
@@ -146,7 +146,7 @@ def roi_for_boxes(boxes: np.ndarray, params: RoiParams) -> np.ndarray:
     return np.array([cx - width / 2, cy - height / 2, cx + width / 2, cy + height / 2])
 
 
-def clip_roi(roi: Sequence[float], frame_size: tuple[int, int]) -> np.ndarray:
+def clip_roi(roi: Sequence[float] | np.ndarray, frame_size: tuple[int, int]) -> np.ndarray:
     """Integer window inside a ``(width, height)`` frame, shifted rather than shrunk when possible.
 
     Edges are rounded outwards to whole pixels, so the window never gets smaller than asked;

@@ -46,7 +46,8 @@ DEFAULT_N_LOCAL = 120
 DEFAULT_N_MISS = 10
 
 
-class Mode(str, enum.Enum):
+# Not a StrEnum: that would change str() and f-strings of a mode from "Mode.GLOBAL" to "GD".
+class Mode(str, enum.Enum):  # noqa: UP042
     """Which detector runs on a frame."""
 
     GLOBAL = "GD"

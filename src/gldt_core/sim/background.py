@@ -1,7 +1,7 @@
 """The scene's background canvas: sky gradient, clouds, sun glare and the ground below the horizon.
 
 The canvas is rendered once per scene, larger than the view by the ego-motion margin, and each
-frame is a crop of it at the camera offset; that is why a 1080p frame costs a few milliseconds.
+frame is a crop of it at the camera offset, which keeps a 1080p frame cheap to render.
 The cloud opacity is defined on a coarse grid (:func:`cloud_field`) so the ground truth can read
 a target's cloud occlusion without rendering any pixels.
 """
@@ -63,7 +63,7 @@ def render_canvas(spec: SceneSpec, style: SceneStyle, clouds: np.ndarray) -> np.
     """Render the background canvas (BGR uint8, canvas size).
 
     Smooth parts (gradient, mottle, glare) are computed at quarter resolution and upsampled;
-    blending uses ``cv2.blendLinear`` so a 2k canvas costs well under half a second.
+    blending uses ``cv2.blendLinear`` so even a 2k canvas is cheap.
     """
     canvas_w, canvas_h = canvas_size(spec, style)
     rng = spec.rng(STREAM_TEXTURE)
@@ -104,7 +104,7 @@ def render_canvas(spec: SceneSpec, style: SceneStyle, clouds: np.ndarray) -> np.
         core = cv2.resize(cv2.GaussianBlur(clouds, (0, 0), 3), (half_w, half_h))
         brightest = float(max(style.zenith + style.horizon_color))
         level = min(brightest + 18.0, 252.0)
-        shade = ((0.84 + 0.22 * texture - 0.2 * core) * level).astype(np.float32)
+        shade: np.ndarray = ((0.84 + 0.22 * texture - 0.2 * core) * level).astype(np.float32)
         alpha = cv2.resize(alpha.astype(np.float32), (canvas_w, canvas_h), interpolation=cv2.INTER_LINEAR)
         shade = cv2.resize(shade, (canvas_w, canvas_h), interpolation=cv2.INTER_LINEAR)
         cloud_rgb = cv2.merge([shade, shade, shade])
@@ -181,9 +181,9 @@ def _draw_ground(
     canvas_h, canvas_w = image.shape[:2]
     scale = spec.height / 1080.0
     columns = np.arange(canvas_w)
-    colour, detail_cells = TERRAIN_LOOKS[style.terrain]
+    terrain_bgr, detail_cells = TERRAIN_LOOKS[style.terrain]
     detail_cells = canvas_w / (detail_cells * scale)
-    colour = np.array(colour)
+    colour = np.array(terrain_bgr)
     ridge, shades = ridge_profile(spec, style)
     top = int(max(0, np.floor(ridge.min())))
     if top >= canvas_h:
@@ -198,7 +198,7 @@ def _draw_ground(
     )
     contrast = 0.35 if style.terrain == "urban" else 0.6
     factor = (1.0 - contrast / 2) + contrast * detail
-    ground = cv2.merge([(factor * float(c)).astype(np.float32) for c in colour])
+    ground: np.ndarray = cv2.merge([(factor * float(c)).astype(np.float32) for c in colour])
     if style.terrain == "treeline":
         # Trunks and crowns: noise stretched vertically, so the tree band reads as many trees.
         trunks = cv2.resize(

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from gldt_core.sim.airframes import Airframe, build_airframe
+from gldt_core.sim.airframes import Airframe, bird_model, build_airframe
 from gldt_core.sim.spec import SceneSpec
 from gldt_core.sim.style import STREAM_BIRD, STREAM_CAMERA, STREAM_TARGET, SceneStyle
 
@@ -51,6 +51,13 @@ class Track:
     behind_clouds: bool
     flap_phase: np.ndarray | None = None
     behind_terrain: bool = False  # far enough to pass behind the tree line / skyline
+
+    def model(self, frame: int) -> Airframe:
+        """The shape drawn in ``frame``: the fixed airframe, or a bird at its wing-beat phase."""
+        if self.airframe is not None:
+            return self.airframe
+        assert self.flap_phase is not None, "a track without an airframe is a bird"
+        return bird_model(float(self.flap_phase[frame]))
 
 
 def camera_offsets(spec: SceneSpec, style: SceneStyle) -> np.ndarray:
@@ -161,7 +168,7 @@ def _target_track(spec: SceneSpec, style: SceneStyle, index: int, lead: Track | 
     kind = str(rng.choice(["quad", "quad", "hexa", "fixed"]))
     fixed_wing = kind == "fixed"
     pattern = str(rng.choice(FIXED_WING_PATTERNS if fixed_wing else PATTERNS))
-    low, high = spec.target_size
+    low, high = spec.span_range
     span0 = float(np.exp(rng.uniform(np.log(low), np.log(high))))
     speed = rng.uniform(0.03, 0.2) * width * (1.5 if fixed_wing else 1.0)
     heading = rng.uniform(-0.35, 0.35) + (np.pi if rng.random() < 0.5 else 0.0)
@@ -228,6 +235,12 @@ def target_tracks(spec: SceneSpec, style: SceneStyle) -> list[Track]:
     return tracks
 
 
+def _bgr(values: np.ndarray) -> tuple[int, int, int]:
+    """Three drawn channel values as a BGR colour tuple."""
+    blue, green, red = (int(v) for v in values)
+    return blue, green, red
+
+
 def bird_tracks(spec: SceneSpec, style: SceneStyle) -> list[Track]:
     """Distractor birds: small, flapping, meandering (class 2 in the ground truth)."""
     tracks = []
@@ -258,7 +271,7 @@ def bird_tracks(spec: SceneSpec, style: SceneStyle) -> list[Track]:
                 roll=np.zeros(spec.frames),
                 bank=np.zeros(spec.frames),
                 elevation=np.full(spec.frames, rng.uniform(-0.4, 0.3)),
-                colour=tuple(int(c) for c in rng.integers(25, 70, size=3)),  # type: ignore[arg-type]
+                colour=_bgr(rng.integers(25, 70, size=3)),
                 behind_clouds=False,
                 flap_phase=flap,
             )

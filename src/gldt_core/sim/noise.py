@@ -16,7 +16,7 @@ def fractal_noise(
     """A float32 field of ``shape`` in [0, 1]: ``octaves`` random grids upsampled and summed.
 
     ``base_cells`` is how many blobs span the width at the coarsest octave. Upsampling small grids
-    with cv2 is what makes a 2k field cost milliseconds instead of a Perlin loop in Python.
+    with cv2 is what makes a 2k field cheap, where a Perlin loop in Python would not be.
     """
     height, width = shape
     total = np.zeros((height, width), np.float32)

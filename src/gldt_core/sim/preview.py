@@ -12,6 +12,8 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
+from gldt_core.sim.render import SceneRenderer
+
 TILE_W = 640
 CROP = 72  # zoomed crop side in the tile
 DRONE_COLOUR = (60, 220, 60)
@@ -74,12 +76,12 @@ def contact_sheet(tiles: Sequence[np.ndarray], columns: int = 3) -> np.ndarray:
     return sheet
 
 
-def scene_preview(renderer: object, count: int = 9, columns: int = 3) -> np.ndarray:
+def scene_preview(renderer: SceneRenderer, count: int = 9, columns: int = 3) -> np.ndarray:
     """A contact sheet of ``count`` frames spread over the scene of ``renderer``."""
-    frames = len(renderer)  # type: ignore[arg-type]
+    frames = len(renderer)
     picks = sorted(set(np.linspace(0, frames - 1, min(count, frames)).round().astype(int).tolist()))
     tiles = []
     for frame in picks:
-        image, rows = renderer.render_with_truth(frame)  # type: ignore[attr-defined]
-        tiles.append(annotate_tile(image, rows, f"seed {renderer.spec.seed} frame {frame + 1}"))  # type: ignore[attr-defined]
+        image, rows = renderer.render_with_truth(frame)
+        tiles.append(annotate_tile(image, rows, f"seed {renderer.spec.seed} frame {frame + 1}"))
     return contact_sheet(tiles, columns)

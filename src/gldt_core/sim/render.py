@@ -11,15 +11,15 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
 from functools import lru_cache
-from typing import Any
+from typing import Unpack, overload
 
 import cv2
 import numpy as np
 
-from gldt_core.sim.airframes import Airframe, bird_model, project
+from gldt_core.sim.airframes import project
 from gldt_core.sim.background import render_canvas
 from gldt_core.sim.scene_geometry import ObjectState, SceneGeometry, rows_from_states
-from gldt_core.sim.spec import SceneSpec
+from gldt_core.sim.spec import SceneSpec, SpecExtras
 from gldt_core.sim.style import STREAM_FRAME, STREAM_STYLE, camera_matrix
 
 NOISE_PAD = 32
@@ -74,7 +74,7 @@ class SceneRenderer:
     def ground_truth(self, frame: int | None = None) -> np.ndarray:
         """MOT rows of one frame (0-based) or of the whole scene."""
         if frame is None:
-            return self.geometry.all_ground_truth()  # type: ignore[attr-defined]
+            return self.geometry.all_ground_truth()
         return self.geometry.ground_truth(frame)
 
     @property
@@ -118,7 +118,10 @@ class SceneRenderer:
             ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, int(spec.jpeg_quality)])
             if not ok:  # pragma: no cover - cv2 always encodes uint8 BGR
                 raise RuntimeError("JPEG encoding failed")
-            image = cv2.imdecode(encoded, cv2.IMREAD_COLOR)
+            decoded = cv2.imdecode(encoded, cv2.IMREAD_COLOR)
+            if decoded is None:  # pragma: no cover - cv2 always decodes what it just encoded
+                raise RuntimeError("JPEG decoding failed")
+            image = decoded
         return image, rows_from_states(states, frame, spec.size)
 
     def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
@@ -138,13 +141,7 @@ class SceneRenderer:
     def _draw(self, image: np.ndarray, state: ObjectState) -> None:
         track = state.track
         span = float(track.span[state.frame])
-        model: Airframe = (
-            track.airframe
-            if track.airframe is not None
-            else bird_model(
-                float(track.flap_phase[state.frame])  # type: ignore[index]
-            )
-        )
+        model = track.model(state.frame)
         velocity = self._screen_velocity(state)
         blur = float(np.hypot(*velocity)) * self.style.blur_exposure
         pad = int(np.ceil(blur / 2)) + 2
@@ -179,7 +176,9 @@ class SceneRenderer:
                 cv2.fillConvexPoly(alpha_ss, hull, opacity, cv2.LINE_8, _SHIFT)
                 cv2.fillConvexPoly(shade_ss, hull, shade, cv2.LINE_8, _SHIFT)
                 cv2.fillConvexPoly(neutral_ss, hull, neutral, cv2.LINE_8, _SHIFT)
-        alpha = cv2.resize(alpha_ss, (patch_w, patch_h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+        alpha: np.ndarray = (
+            cv2.resize(alpha_ss, (patch_w, patch_h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
+        )
         shade_map = cv2.resize(shade_ss, (patch_w, patch_h), interpolation=cv2.INTER_AREA).astype(np.float32) / 100.0
         grey = cv2.resize(neutral_ss, (patch_w, patch_h), interpolation=cv2.INTER_AREA).astype(np.float32) / 255.0
         colour = np.asarray(track.colour, np.float32)[None, None, :] * shade_map[..., None]
@@ -220,7 +219,7 @@ def _line_kernel(velocity: np.ndarray, length: float) -> np.ndarray:
     """A normalised line kernel along ``velocity`` of ``length`` px (linear motion blur)."""
     size = int(np.ceil(length)) | 1
     size = max(size, 3)
-    kernel = np.zeros((size * 4, size * 4), np.float32)
+    kernel: np.ndarray = np.zeros((size * 4, size * 4), np.float32)
     direction = velocity / max(float(np.hypot(*velocity)), 1e-6)
     centre = np.array([size * 2 - 0.5, size * 2 - 0.5])
     start = centre - direction * length * 2
@@ -257,7 +256,13 @@ class SceneFrames(Sequence[np.ndarray]):
             self._recent[index] = image
         return image
 
-    def __getitem__(self, index: int | slice) -> Any:  # type: ignore[override]
+    @overload
+    def __getitem__(self, index: int) -> np.ndarray: ...
+
+    @overload
+    def __getitem__(self, index: slice) -> list[np.ndarray]: ...
+
+    def __getitem__(self, index: int | slice) -> np.ndarray | list[np.ndarray]:
         if isinstance(index, slice):
             return [self._frame(k) for k in range(*index.indices(len(self)))]
         return self._frame(int(index))
@@ -269,20 +274,13 @@ def render_scene(
     size: tuple[int, int] = (1920, 1080),
     targets: int = 3,
     fps: float = 30.0,
-    **spec_fields: object,
+    **spec_fields: Unpack[SpecExtras],
 ) -> tuple[SceneFrames, np.ndarray]:
     """``(frames, gt)``: the scene's frames (lazy list of BGR images) and its MOT ground truth.
 
     ``gt`` is exactly :func:`gldt_core.sim.scene_ground_truth` for the same arguments; extra
     keyword arguments are :class:`SceneSpec` fields (``target_size``, ``birds``, ``jpeg_quality``).
     """
-    spec = SceneSpec(
-        seed=seed,
-        frames=frames,
-        size=tuple(size),
-        targets=targets,
-        fps=fps,  # type: ignore[arg-type]
-        **spec_fields,
-    )  # type: ignore[arg-type]
+    spec = SceneSpec(seed=seed, frames=frames, size=size, targets=targets, fps=fps, **spec_fields)
     renderer = SceneRenderer(spec)
     return SceneFrames(renderer), renderer.ground_truth()

@@ -8,13 +8,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Unpack
 
 import numpy as np
 
-from gldt_core.sim.airframes import bird_model, box_extents, rotation_matrices
+from gldt_core.sim.airframes import box_extents, rotation_matrices
 from gldt_core.sim.background import canvas_size, cloud_field, ridge_profile, sample_cloud, terrain_visibility
 from gldt_core.sim.motion import Track, bird_tracks, camera_offsets, target_tracks
-from gldt_core.sim.spec import BIRD_ID_BASE, CLASS_BIRD, CLASS_DRONE, SceneSpec
+from gldt_core.sim.spec import BIRD_ID_BASE, CLASS_BIRD, CLASS_DRONE, SceneSpec, SpecExtras
 from gldt_core.sim.style import SceneStyle, scene_style
 
 
@@ -51,6 +52,7 @@ class SceneGeometry:
         """Per target: rotations (F, 3, 3) and world boxes (F, 4)."""
         result = []
         for track in self.targets:
+            assert track.airframe is not None, "drone targets carry a fixed airframe"
             rotations = rotation_matrices(track.yaw, track.pitch, track.roll, track.bank, track.elevation)
             extents = box_extents(track.airframe, rotations) * track.span[:, None]
             boxes = extents + np.tile(track.centre, 2)
@@ -80,7 +82,7 @@ class SceneGeometry:
             if state is not None:
                 states.append(state)
         for index, track in enumerate(self.birds):
-            model = bird_model(float(track.flap_phase[frame]))
+            model = track.model(frame)
             rotation = rotation_matrices(
                 track.yaw[frame], track.pitch[frame], track.roll[frame], track.bank[frame], track.elevation[frame]
             )
@@ -115,6 +117,12 @@ class SceneGeometry:
     def ground_truth(self, frame: int) -> np.ndarray:
         """MOT rows (K, 10) of ``frame`` (0-based): boxes clipped to the view, 2-decimal px."""
         return rows_from_states(self.objects(frame), frame, self.spec.size)
+
+    def all_ground_truth(self) -> np.ndarray:
+        """MOT rows (N, 10) of every frame of the scene, in frame order."""
+        tables = [self.ground_truth(k) for k in range(self.spec.frames)]
+        tables = [t for t in tables if len(t)]
+        return np.concatenate(tables) if tables else np.zeros((0, 10))
 
 
 def rows_from_states(states: list[ObjectState], frame: int, size: tuple[int, int]) -> np.ndarray:
@@ -151,7 +159,7 @@ def scene_ground_truth(
     size: tuple[int, int] = (1920, 1080),
     targets: int = 3,
     fps: float = 30.0,
-    **spec_fields: object,
+    **spec_fields: Unpack[SpecExtras],
 ) -> np.ndarray:
     """The MOT ground truth (N, 10) the renderer draws for these arguments, without rendering.
 
@@ -161,21 +169,5 @@ def scene_ground_truth(
     :class:`SceneSpec` fields (``target_size``, ``birds``, ...). Filter ``gt[:, 7] == 1`` for
     drones only.
     """
-    spec = SceneSpec(
-        seed=seed,
-        frames=frames,
-        size=tuple(size),
-        targets=targets,
-        fps=fps,  # type: ignore[arg-type]
-        **spec_fields,
-    )  # type: ignore[arg-type]
+    spec = SceneSpec(seed=seed, frames=frames, size=size, targets=targets, fps=fps, **spec_fields)
     return SceneGeometry(spec).all_ground_truth()
-
-
-def _all_ground_truth(self: SceneGeometry) -> np.ndarray:
-    tables = [self.ground_truth(k) for k in range(self.spec.frames)]
-    tables = [t for t in tables if len(t)]
-    return np.concatenate(tables) if tables else np.zeros((0, 10))
-
-
-SceneGeometry.all_ground_truth = _all_ground_truth  # type: ignore[attr-defined]

@@ -8,6 +8,7 @@ machine (numpy's ``PCG64`` streams and OpenCV drawing are deterministic).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any, TypedDict
 
 import numpy as np
 
@@ -26,8 +27,9 @@ class SceneSpec:
     """One reproducible scene.
 
     ``target_size`` is the range of airframe spans (wingspan / rotor-tip to rotor-tip) in pixels;
-    ``None`` means :func:`default_target_size`; that default covers FT-like dots (a 6 px drone is < 0.002 % of a 1080p frame) up to MOT-FLY-like
-    close passes. ``birds`` ``None`` lets the seed decide (0-3 distractor birds, class 2 in gt).
+    ``None`` means :func:`default_target_size`, which covers FT-like dots (a 6 px drone is
+    < 0.002 % of a 1080p frame) up to MOT-FLY-like close passes; :attr:`span_range` is the
+    resolved range. ``birds`` ``None`` lets the seed decide (0-3 distractor birds, class 2 in gt).
     ``jpeg_quality`` ``None`` renders clean frames; a number round-trips each frame through JPEG so
     training images carry compression artefacts.
     """
@@ -50,6 +52,12 @@ class SceneSpec:
         validate_spec(self)
 
     @property
+    def span_range(self) -> tuple[float, float]:
+        """``target_size`` after ``__post_init__`` filled in the default: never ``None``."""
+        assert self.target_size is not None, "__post_init__ sets target_size"
+        return self.target_size
+
+    @property
     def width(self) -> int:
         return int(self.size[0])
 
@@ -57,9 +65,9 @@ class SceneSpec:
     def height(self) -> int:
         return int(self.size[1])
 
-    def with_(self, **changes: object) -> SceneSpec:
-        """A copy with some fields changed (validated again)."""
-        return replace(self, **changes)  # type: ignore[arg-type]
+    def with_(self, **changes: Any) -> SceneSpec:
+        """A copy with some fields changed (validated again by ``__post_init__``)."""
+        return replace(self, **changes)
 
     def rng(self, *stream: int) -> np.random.Generator:
         """An independent random stream of this scene, keyed by small integers.
@@ -69,6 +77,15 @@ class SceneSpec:
         access to frame k possible.
         """
         return np.random.default_rng([int(self.seed) & 0xFFFFFFFF, *(int(s) for s in stream)])
+
+
+class SpecExtras(TypedDict, total=False):
+    """The :class:`SceneSpec` fields that scene helpers take as extra keyword arguments."""
+
+    target_size: tuple[float, float] | None
+    birds: int | None
+    jpeg_quality: int | None
+    name: str
 
 
 def default_target_size(size: tuple[int, int]) -> tuple[float, float]:
@@ -98,9 +115,9 @@ def validate_spec(spec: SceneSpec) -> None:
         raise ValueError(f"targets must be an integer in 0..64, got {spec.targets!r}")
     if not spec.fps > 0:
         raise ValueError(f"fps must be positive, got {spec.fps!r}")
-    if len(spec.target_size) != 2:  # type: ignore[arg-type]
+    if len(spec.span_range) != 2:
         raise ValueError(f"target_size must be (min, max) px, got {spec.target_size!r}")
-    low, high = spec.target_size  # type: ignore[misc]
+    low, high = spec.span_range
     if not 2.0 <= low <= high:
         raise ValueError(f"target_size must be (min, max) with 2 <= min <= max px, got {spec.target_size!r}")
     if high > min(width, height) / 2:

@@ -55,14 +55,20 @@ class SceneStyle:
     vignette: float
 
 
+def _jittered(colour: tuple[float, float, float], jitter: np.ndarray) -> tuple[float, float, float]:
+    """``colour`` plus per-channel ``jitter``, kept inside 0..255."""
+    blue, green, red = (float(np.clip(c + j, 0, 255)) for c, j in zip(colour, jitter))
+    return blue, green, red
+
+
 def scene_style(spec: SceneSpec) -> SceneStyle:
     """Draw the scene-wide choices of ``spec`` from its style stream."""
     rng = spec.rng(STREAM_STYLE)
     width, height = spec.size
     palette = SKY_PALETTES[int(rng.integers(len(SKY_PALETTES)))]
     jitter = rng.normal(0.0, 8.0, size=6)
-    zenith = tuple(float(np.clip(c + j, 0, 255)) for c, j in zip(palette[0], jitter[:3]))
-    horizon = tuple(float(np.clip(c + j, 0, 255)) for c, j in zip(palette[1], jitter[3:]))
+    zenith = _jittered(palette[0], jitter[:3])
+    horizon = _jittered(palette[1], jitter[3:])
     ground_roll = rng.random()
     if ground_roll < 0.3:
         terrain = "none"
@@ -85,8 +91,8 @@ def scene_style(spec: SceneSpec) -> SceneStyle:
     margin = (max(8, int(round(0.1 * width))), max(8, int(round(0.1 * height))))
     return SceneStyle(
         margin=margin,
-        zenith=zenith,  # type: ignore[arg-type]
-        horizon_color=horizon,  # type: ignore[arg-type]
+        zenith=zenith,
+        horizon_color=horizon,
         horizon_y=horizon_y,
         terrain=terrain,
         cloud_cover=cloud_cover,

@@ -8,12 +8,14 @@ import tempfile
 from pathlib import Path
 
 import cv2
+import numpy as np
 
 from gldt_core.io.mot import write_mot
 from gldt_core.io.mot_folder import write_seqinfo
+from gldt_core.sim.render import SceneRenderer
 
 
-def write_mot_sequence(renderer: object, out: Path, *, jpeg_quality: int = 95, overwrite: bool = False) -> str:
+def write_mot_sequence(renderer: SceneRenderer, out: Path, *, jpeg_quality: int = 95, overwrite: bool = False) -> str:
     """Render every frame into ``out/img1/%06d.jpg`` with ``gt/gt.txt`` and ``seqinfo.ini``.
 
     Written into a temporary sibling folder and renamed when complete, so an interrupted run
@@ -27,7 +29,7 @@ def write_mot_sequence(renderer: object, out: Path, *, jpeg_quality: int = 95, o
         raise FileNotFoundError(f"output folder {parent} does not exist")
     if not os.access(parent, os.W_OK):
         raise ValueError(f"output folder {parent} is not writable")
-    spec = renderer.spec  # type: ignore[attr-defined]
+    spec = renderer.spec
     try:
         staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=parent))
     except OSError as error:
@@ -35,14 +37,12 @@ def write_mot_sequence(renderer: object, out: Path, *, jpeg_quality: int = 95, o
     try:
         (staging / "img1").mkdir()
         tables = []
-        for frame in range(len(renderer)):  # type: ignore[arg-type]
-            image, rows = renderer.render_with_truth(frame)  # type: ignore[attr-defined]
+        for frame in range(len(renderer)):
+            image, rows = renderer.render_with_truth(frame)
             path = staging / "img1" / f"{frame + 1:06d}.jpg"
             if not cv2.imwrite(str(path), image, [cv2.IMWRITE_JPEG_QUALITY, int(jpeg_quality)]):
                 raise OSError(f"cannot write {path}")
             tables.append(rows)
-        import numpy as np
-
         gt = np.concatenate(tables) if tables else np.zeros((0, 10))
         write_mot(staging / "gt" / "gt.txt", gt)
         name = spec.name or f"synth-{spec.seed:06d}"

@@ -11,7 +11,7 @@ no motion cue for one frame, which is the best that can be done.
 The ROS nodes run the same pieces in separate processes: :class:`ModeScheduler` and
 :func:`plan_rois` need no images or models; only the wiring here is offline-specific.
 
-Bad input keeps the pipeline running and says so: a frame of another size re-initialises
+Bad input keeps the system running and says so: a frame of another size re-initialises
 (warning), time going backwards re-initialises (warning), a dropped frame (a timestamp gap) is
 counted and handled by the tracker's time-based prediction, black or saturated frames are just
 frames. Inputs that are not frames at all (wrong shape/dtype, NaN time) raise ``ValueError``.
@@ -23,7 +23,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 
@@ -40,9 +40,10 @@ from gldt_core.system.steps import (
 from gldt_core.system.timing import StageTimer
 
 if TYPE_CHECKING:
-    from gldt_core.detect.staged import GlobalCarry
+    from gldt_core.detect.global_detector import GlobalCarry
+    from gldt_core.track.base import MultiStageTracker
 
-LOG = logging.getLogger("gldt.pipeline")
+LOG = logging.getLogger("gldt.system")
 
 #: A gap longer than this many nominal frame periods counts as dropped frames.
 _GAP_FACTOR = 1.5
@@ -64,9 +65,15 @@ class TrackerLike(Protocol):
     def reset(self) -> None: ...
 
 
+class RoiTrackerLike(TrackerLike, Protocol):
+    """A tracker whose ``update`` also takes the window each detection came from (PMR's eq. 16)."""
+
+    def update(self, detections: np.ndarray, t_seconds: float, *, rois: np.ndarray | None = None) -> np.ndarray: ...
+
+
 @dataclass(frozen=True)
 class SystemState:
-    """What the pipeline is doing now; for the overlay, logs, ROS diagnostics and tests."""
+    """What the system is doing now; for the overlay, logs, ROS diagnostics and tests."""
 
     frame_index: int  # frames processed since start (not reset by re-initialisation)
     mode: Mode  # mode of the last processed frame
@@ -95,7 +102,7 @@ def accepts_keyword(function: Any, name: str) -> bool:
     return name in parameters or any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters.values())
 
 
-def build_tracker(config: SystemConfig, image_size: tuple[int, int] | None = None) -> TrackerLike:
+def build_tracker(config: SystemConfig, image_size: tuple[int, int] | None = None) -> MultiStageTracker:
     """The tracker the config names (JPTrack or ByteTrack), built from its params.
 
     ``image_size`` (width, height) gives the trackers the frame's size, for the relative
@@ -107,8 +114,10 @@ def build_tracker(config: SystemConfig, image_size: tuple[int, int] | None = Non
     from gldt_core import track
 
     settings = config.tracker
-    config_class = track.JPTrackConfig if settings.name == "jptrack" else track.ByteTrackConfig
-    tracker_class = track.JPTrack if settings.name == "jptrack" else track.ByteTrack
+    jptrack = settings.name == "jptrack"
+    config_class: type[track.JPTrackConfig | track.ByteTrackConfig] = (
+        track.JPTrackConfig if jptrack else track.ByteTrackConfig
+    )
     params = settings.parameters()
     known = {f.name for f in dataclasses.fields(config_class)}
     unknown = sorted(set(params) - known)
@@ -120,7 +129,9 @@ def build_tracker(config: SystemConfig, image_size: tuple[int, int] | None = Non
     if image_size is not None and "image_size" in known:
         params["image_size"] = (int(image_size[0]), int(image_size[1]))
     try:
-        return tracker_class(config_class(**params))
+        if jptrack:
+            return track.JPTrack(track.JPTrackConfig(**params))
+        return track.ByteTrack(track.ByteTrackConfig(**params))
     except TypeError as error:  # wrong value types inside the dataclass
         raise ValueError(f"tracker.params: {error}") from None
 
@@ -243,7 +254,8 @@ class GLDTSystem:
         self.reset()
 
     # ------------------------------------------------------------------ frame
-    def _check_input(self, frame: np.ndarray, t: float) -> np.ndarray:
+    def _check_input(self, frame: np.ndarray, t: float) -> tuple[np.ndarray, tuple[int, int]]:
+        """The validated frame and its ``(width, height)``; re-initialises on a size or time jump."""
         from gldt_core.io.imaging import validate_bgr_frame
 
         frame = validate_bgr_frame(frame, what=f"frame {self._frame_index}")
@@ -262,7 +274,7 @@ class GLDTSystem:
             # Nominal period = the shortest step seen, so one long gap cannot redefine it.
             self._period = dt if self._period is None else min(self._period, dt)
         self._size = size
-        return frame
+        return frame, size
 
     def _count_invalid(self, raw: np.ndarray, columns: int) -> np.ndarray:
         """Detector output as ``(N, columns)`` floats; counts the rows the steps will drop."""
@@ -288,14 +300,14 @@ class GLDTSystem:
         """Run one frame (HxWx3 uint8 BGR, ``t`` seconds); returns ``(M, 6)`` ``[x1,y1,x2,y2,id,score]``."""
         timer = self.timer
         with timer.stage("preprocess"):
-            frame = self._check_input(frame, t)
+            frame, size = self._check_input(frame, t)
             t = float(t)
             previous = self._previous if self._previous is not None else frame
-            if self._owns_tracker and self._tracker_size != self._size:
-                self.tracker = build_tracker(self.config, self._size)
-                self._tracker_size = self._size
+            if self._owns_tracker and self._tracker_size != size:
+                self.tracker = build_tracker(self.config, size)
+                self._tracker_size = size
             predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
-            plan = self.scheduler.plan_frame(t, self._size, predictions)
+            plan = self.scheduler.plan_frame(t, size, predictions)
 
         # The carry belongs to the previous frame; this frame's replaces it only once the frame
         # is complete, together with ``_previous`` (a frame that raises leaves neither).
@@ -310,6 +322,9 @@ class GLDTSystem:
             detection_rois = None
             self._global_frames += 1
         else:
+            # The scheduler plans LD frames only when local detection is enabled, and then
+            # __init__ made sure there is a local detector.
+            assert self.local_detector is not None
             with timer.stage("ld"):
                 raw = self._count_invalid(self.local_detector.detect_rois(frame, plan.rois), 7)
                 raw = merge_local_detections(raw, self.config.detector.classes, self.config.detector.nms_iou)
@@ -323,7 +338,8 @@ class GLDTSystem:
 
         with timer.stage("tracking"):
             if self._tracker_takes_rois:
-                output = self.tracker.update(detections, t, rois=detection_rois)
+                # accepts_keyword checked this tracker's update for ``rois``.
+                output = cast(RoiTrackerLike, self.tracker).update(detections, t, rois=detection_rois)
             else:
                 output = self.tracker.update(detections, t)
             tracks = np.asarray(output, dtype=np.float64).reshape(-1, 6)
@@ -331,7 +347,7 @@ class GLDTSystem:
             self.scheduler.report_detections(plan, counts)
 
         # Keep our own copy: callers (decoders, ROS buffers, overlay code) may reuse theirs.
-        # The copy is pipeline overhead, so it is booked to this frame's preprocess stage.
+        # The copy is the system's overhead, so it is booked to this frame's preprocess stage.
         copy_start = time.perf_counter()
         if self._previous is None or self._previous.shape != frame.shape:
             self._previous = frame.copy()

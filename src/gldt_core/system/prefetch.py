@@ -1,10 +1,10 @@
-"""Read and decode the next frames in a background thread while the pipeline works on this one.
+"""Read and decode the next frames in a background thread while the GL-DT system works on this one.
 
-Offline, decoding is the pipeline's second cost after the global detector: a 1080p JPEG takes
-5-10 ms here, a sixth of a GD frame. A camera driver decodes beside the perception stack; the
-offline runner does the same with :class:`FramePrefetcher`. OpenCV's decoders and onnxruntime
-release the GIL, so the thread decodes on whatever core the detector leaves idle (onnxruntime's
-intra-op threads are far from 100 % busy on a network of 8-64 channels).
+Offline, decoding a 1080p JPEG is a real share of a frame's cost beside the global detector. A
+camera driver decodes beside the perception stack; the offline runner does the same with
+:class:`FramePrefetcher`. OpenCV's decoders and onnxruntime release the GIL, so the thread decodes
+on whatever core the detector leaves idle (onnxruntime's intra-op threads cannot keep every core
+busy on a network as narrow as these, 8-64 channels).
 
 Frames come out in the source's order, unchanged, so the tracks are the same with and without
 it. An exception raised by the source reaches the consumer at the position it happened, after
@@ -21,7 +21,7 @@ import time
 from collections.abc import Iterable, Iterator
 from typing import Any
 
-LOG = logging.getLogger("gldt.pipeline")
+LOG = logging.getLogger("gldt.system")
 
 #: How long ``close`` waits for the reading thread to finish the frame it is on.
 JOIN_TIMEOUT_S = 10.0

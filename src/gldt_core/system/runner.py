@@ -67,7 +67,7 @@ def tracks_to_mot(tracks: np.ndarray, frame_number: int) -> np.ndarray:
     return out
 
 
-def _timed(frames: Iterable[Any], pipeline: GLDTSystem, limit: int | None) -> Iterator[Any]:
+def _timed(frames: Iterable[Any], system: GLDTSystem, limit: int | None) -> Iterator[Any]:
     """Yield at most ``limit`` frames, booking the time spent fetching each as ``decode``."""
     iterator = iter(frames)
     fetched = 0
@@ -78,20 +78,20 @@ def _timed(frames: Iterable[Any], pipeline: GLDTSystem, limit: int | None) -> It
             frame = next(iterator)
         except StopIteration:
             return
-        pipeline.timer.add("decode", time.perf_counter() - start)
+        system.timer.add("decode", time.perf_counter() - start)
         yield frame
 
 
 class _Recorder:
-    """What one pipeline's run keeps per frame: track rows, the mode, ground truth if asked."""
+    """What one system's run keeps per frame: track rows, the mode, ground truth if asked."""
 
     def __init__(
         self,
-        pipeline: GLDTSystem,
+        system: GLDTSystem,
         on_frame: Callable[[Any, np.ndarray], None] | None,
         collect_ground_truth: bool,
     ) -> None:
-        self.pipeline = pipeline
+        self.system = system
         self.on_frame = on_frame
         self.collect_ground_truth = collect_ground_truth
         self.rows: list[np.ndarray] = []
@@ -99,9 +99,9 @@ class _Recorder:
         self.modes: list[bool] = []
 
     def step(self, frame: Any) -> None:
-        tracks = self.pipeline.process(frame.image, frame.stamp)
+        tracks = self.system.process(frame.image, frame.stamp)
         self.rows.append(tracks_to_mot(tracks, int(frame.index) + 1))
-        self.modes.append(self.pipeline.state.mode is Mode.GLOBAL)
+        self.modes.append(self.system.state.mode is Mode.GLOBAL)
         if self.collect_ground_truth:
             gt = getattr(frame, "ground_truth", None)
             if gt is not None and len(gt):
@@ -124,14 +124,14 @@ class _Recorder:
             global_frames=int(mode_array.sum()),
             modes=mode_array,
             ground_truth=gt_table,
-            stage_ms={name: ms for name, ms, _, _ in self.pipeline.timer.breakdown(count)},
-            reinitialisations=self.pipeline.state.reinitialisations,
+            stage_ms={name: ms for name, ms, _, _ in self.system.timer.breakdown(count)},
+            reinitialisations=self.system.state.reinitialisations,
             prefetch_ms=prefetch_ms,
         )
 
 
 def run_frames(
-    pipeline: GLDTSystem,
+    system: GLDTSystem,
     frames: Iterable[Any],
     *,
     max_frames: int | None = None,
@@ -144,42 +144,42 @@ def run_frames(
     progress bar). Output frame numbers are ``index + 1`` (MOTChallenge is 1-based).
     ``prefetch`` > 0 reads that many frames ahead in a background thread (same frames, same tracks;
     each frame must own its image array, see :class:`~gldt_core.system.prefetch.FramePrefetcher`)."""
-    recorder = _Recorder(pipeline, on_frame, collect_ground_truth)
+    recorder = _Recorder(system, on_frame, collect_ground_truth)
     if prefetch < 0:
         raise ValueError(f"prefetch must be >= 0, got {prefetch}")
     start = time.perf_counter()
     if not prefetch:
-        for frame in _timed(frames, pipeline, max_frames):
+        for frame in _timed(frames, system, max_frames):
             recorder.step(frame)
         return recorder.result(time.perf_counter() - start)
     from gldt_core.system.prefetch import FramePrefetcher
 
     with FramePrefetcher(frames, prefetch) as ahead:
-        for frame in _timed(ahead, pipeline, max_frames):
+        for frame in _timed(ahead, system, max_frames):
             recorder.step(frame)
         seconds = time.perf_counter() - start
     return recorder.result(seconds, ahead.read_ms_per_frame)
 
 
 def run_frames_interleaved(
-    pipelines: Sequence[GLDTSystem],
+    systems: Sequence[GLDTSystem],
     frames: Iterable[Any],
     *,
     on_frame: Sequence[Callable[[Any, np.ndarray], None] | None] | None = None,
 ) -> list[RunResult]:
-    """:func:`run_frames` for several pipelines at once, taking turns frame by frame.
+    """:func:`run_frames` for several systems at once, taking turns frame by frame.
 
-    For comparing their speed on a shared machine, whose CPU speed drifts by a factor of two
-    within seconds: pipelines run one after the other see different machines, pipelines that take
+    For comparing their speed on a shared machine, whose CPU speed drifts within seconds:
+    systems run one after the other see different machines, systems that take
     turns on every frame see the same one. Each frame is decoded once; its decode time is booked
-    to every pipeline (each would have had to decode it), and each pipeline's ``seconds`` is that
-    plus its own processing. Every pipeline gets exactly the frames and results it would get from
-    :func:`run_frames`, as long as the pipelines share no mutable state.
+    to every system (each would have had to decode it), and each system's ``seconds`` is that
+    plus its own processing. Every system gets exactly the frames and results it would get from
+    :func:`run_frames`, as long as the systems share no mutable state.
     """
-    callbacks = list(on_frame) if on_frame is not None else [None] * len(pipelines)
-    if len(callbacks) != len(pipelines):
-        raise ValueError(f"run_frames_interleaved: {len(callbacks)} on_frame callbacks for {len(pipelines)} pipelines")
-    recorders = [_Recorder(pipeline, callback, False) for pipeline, callback in zip(pipelines, callbacks)]
+    callbacks = list(on_frame) if on_frame is not None else [None] * len(systems)
+    if len(callbacks) != len(systems):
+        raise ValueError(f"run_frames_interleaved: {len(callbacks)} on_frame callbacks for {len(systems)} systems")
+    recorders = [_Recorder(system, callback, False) for system, callback in zip(systems, callbacks)]
     seconds = [0.0] * len(recorders)
     iterator = iter(frames)
     while True:
@@ -190,7 +190,7 @@ def run_frames_interleaved(
             break
         decode = time.perf_counter() - start
         for index, recorder in enumerate(recorders):
-            recorder.pipeline.timer.add("decode", decode)
+            recorder.system.timer.add("decode", decode)
             start = time.perf_counter()
             recorder.step(frame)
             seconds[index] += decode + time.perf_counter() - start

@@ -1,7 +1,7 @@
 """Per-frame steps of GL-DT shared by :class:`GLDTSystem` and the ROS nodes.
 
 The ROS graph splits a frame's work over processes (tracker, scheduler, detectors); each node
-calls the same function here that the in-process pipeline calls, which is what makes a lockstep
+calls the same function here that the in-process :class:`GLDTSystem` calls, which is what makes a lockstep
 replay through the graph reproduce the offline run exactly.
 """
 

@@ -10,7 +10,7 @@ import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-#: The stages reported, in pipeline order.
+#: The stages reported, in the order a frame passes through them.
 STAGES = ("decode", "preprocess", "gd", "ld", "tracking", "render")
 
 

@@ -15,8 +15,8 @@ and in JPTrack's third, PMR stage, so both run this loop:
    reappeared at the same place in each of the last K frames starts a *confirmed* track: K
    consistent sightings confirm it as the one-hit tentative step would, but without ever needing
    a high score. With an under-confident detector, a drone it sees steadily at 0.15-0.25 would
-   otherwise never get a track (see :mod:`.birth`). Off by default: with the shipped detectors,
-   birds come back at the same place as steadily as drones do (README, "Low-score birth").
+   otherwise never get a track (see :mod:`gldt_core.track.birth`). Off by default: with the
+   shipped detectors, birds come back at the same place as steadily as drones do.
 
 Time is the caller's timestamp in seconds; nothing counts frames except ``frames_since_update``.
 """
@@ -27,16 +27,18 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from gldt_core.track.assignment import linear_sum_assignment
+from gldt_core.track.assignment import assign
 from gldt_core.track.birth import LowScoreBirth
 from gldt_core.track.boxes import (
-    SCALAR_IOU_PAIRS,
+    corners,
     iou_pairs_above,
-    iou_row_pairs_above,
     iou_xyxy,
+    relative_centre,
     validate_detections,
     validate_time,
 )
+from gldt_core.track.fastpath import on_floats
+from gldt_core.track.kalman import predicted_many
 from gldt_core.track.state import (
     Track,
     TrackState,
@@ -49,32 +51,6 @@ from gldt_core.track.state import (
 OUTPUT_STATES = (TrackState.CONFIRMED, TrackState.RECOVERED)
 #: Tolerance of the lost-track windows, against floating-point time differences.
 TIME_SLACK_S = 1e-9
-#: Up to this many detections, relative positions are computed on Python floats.
-SMALL_REL_ROWS = 32
-
-
-def assign(cost: np.ndarray, allowed: np.ndarray, limit: float) -> list[tuple[int, int]]:
-    """Minimum-cost one-to-one matching of ``allowed`` pairs, where leaving a row or a column
-    unmatched costs ``limit / 2`` (``allowed`` pairs should cost at most ``limit``).
-
-    This is what ByteTrack's reference ``lap.lapjv(cost, extend_cost=True, cost_limit=thresh)``
-    solves. A plain assignment over the allowed pairs would instead match as many pairs as it can
-    before it looks at cost: with two tracks side by side, one of them missed and a new object
-    beside the other, it hands the present track the newcomer and the missed track the present
-    track's detection, swapping their ids. Here keeping the good pair (cost c) and leaving the
-    other two unmatched (limit) beats the swap whenever the swap costs more.
-
-    How, without lapjv's doubled matrix: a matching of k pairs costs ``sum(c) + (n + m - 2k) *
-    limit / 2``, that is ``sum(c - limit)`` plus a constant. So each allowed pair gets ``c - limit``
-    (<= 0) and each forbidden one 0, and the rectangular solver's full assignment, minus its
-    forbidden pairs, is the optimal matching: padding a matching with zero-cost pairs is free.
-    A pair at exactly the limit gets a hair below 0, so it is matched rather than left to chance.
-    """
-    if cost.size == 0 or not allowed.any():
-        return []
-    gain = np.where(allowed, cost - (float(limit) + 1e-9), 0.0)
-    rows, cols = linear_sum_assignment(gain)
-    return [(int(r), int(c)) for r, c in zip(rows, cols) if allowed[r, c]]
 
 
 class MultiStageTracker:
@@ -133,11 +109,17 @@ class MultiStageTracker:
     def predict(self, t: float) -> np.ndarray:
         """Predicted ``[x1, y1, x2, y2, track_id]`` at ``t`` of confirmed/recovered tracks and of
         lost tracks within the association window; never changes any state."""
-        rows = []
-        for tr in self._tracks:
-            if tr.state in OUTPUT_STATES or (tr.state is TrackState.LOST and t - tr.last_update_t <= self._window_s):
-                rows.append([*tr.predicted_xyxy(float(t)), float(tr.track_id)])
-        return np.asarray(rows, dtype=np.float64).reshape(-1, 5)
+        t = float(t)
+        shown = [
+            tr
+            for tr in self._tracks
+            if tr.state in OUTPUT_STATES or (tr.state is TrackState.LOST and t - tr.last_update_t <= self._window_s)
+        ]
+        means, _ = predicted_many([tr.kf for tr in shown], np.array([t - tr.kf_t for tr in shown]))
+        out = np.empty((len(shown), 5))
+        out[:, 0], out[:, 1], out[:, 2], out[:, 3] = corners(means[:, 0], means[:, 1], means[:, 2], means[:, 3])
+        out[:, 4] = [tr.track_id for tr in shown]
+        return out
 
     def update(
         self,
@@ -290,23 +272,24 @@ class MultiStageTracker:
         """(x_rel, y_rel) of each detection centre inside its ROI (the image when no ROI)."""
         if len(dets) == 0:
             return []
-        if rois is None and len(dets) <= SMALL_REL_ROWS:  # the same operations on Python floats
+        boxes = dets[:, 0], dets[:, 1], dets[:, 2], dets[:, 3]
+        if rois is None:  # the image
             w, h = self._image_size
-            return [(((x1 + x2) * 0.5 - 0.0) / w, ((y1 + y2) * 0.5 - 0.0) / h) for x1, y1, x2, y2, _ in dets.tolist()]
-        cx = (dets[:, 0] + dets[:, 2]) * 0.5
-        cy = (dets[:, 1] + dets[:, 3]) * 0.5
-        if rois is None:  # the image: origin 0, scalar sizes (same values, fewer arrays)
-            x0 = y0 = 0.0
-            w, h = self._image_size
-        else:
-            r = np.asarray(rois, dtype=np.float64)
-            if r.shape != (len(dets), 4) or not np.all(np.isfinite(r)):
-                where = f"frame {frame}" if frame is not None else f"t={t:.6f} s"
-                raise ValueError(f"{where}: rois must be a finite ({len(dets)}, 4) xyxy array, got shape {r.shape}")
-            x0, y0 = r[:, 0], r[:, 1]
-            w = np.maximum(r[:, 2] - r[:, 0], 1e-9)
-            h = np.maximum(r[:, 3] - r[:, 1], 1e-9)
-        return list(zip(((cx - x0) / w).tolist(), ((cy - y0) / h).tolist()))
+            if on_floats(len(dets)):
+                return [relative_centre(x1, y1, x2, y2, 0.0, 0.0, w, h) for x1, y1, x2, y2, _ in dets.tolist()]
+            x, y = relative_centre(*boxes, 0.0, 0.0, w, h)
+            return list(zip(x.tolist(), y.tolist()))
+        r = np.asarray(rois, dtype=np.float64)
+        if r.shape != (len(dets), 4) or not np.all(np.isfinite(r)):
+            where = f"frame {frame}" if frame is not None else f"t={t:.6f} s"
+            raise ValueError(f"{where}: rois must be a finite ({len(dets)}, 4) xyxy array, got shape {r.shape}")
+        # A degenerate ROI counts as 1e-9 px wide.
+        window = r[:, 0], r[:, 1], np.maximum(r[:, 2] - r[:, 0], 1e-9), np.maximum(r[:, 3] - r[:, 1], 1e-9)
+        if on_floats(len(dets)):
+            rows = zip(dets.tolist(), np.column_stack(window).tolist())
+            return [relative_centre(*box[:4], *win) for box, win in rows]
+        x, y = relative_centre(*boxes, *window)
+        return list(zip(x.tolist(), y.tolist()))
 
     @staticmethod
     def _remove_duplicates(tracks: list[Track]) -> list[Track]:
@@ -316,12 +299,8 @@ class MultiStageTracker:
         lost = [tr for tr in tracks if tr.state is TrackState.LOST]
         if not active or not lost:
             return tracks
-        if len(active) * len(lost) <= SCALAR_IOU_PAIRS:  # Python floats end to end
-            pairs = iou_row_pairs_above(box_rows(active), box_rows(lost), 0.85)
-        else:
-            pairs = iou_pairs_above(boxes_xyxy(active), boxes_xyxy(lost), 0.85)
         drop = set()
-        for i, j in pairs:
+        for i, j in iou_pairs_above(box_rows(active), box_rows(lost), 0.85):
             a, b = active[i], lost[j]
             drop.add(id(b) if a.age_s >= b.age_s else id(a))
         return [tr for tr in tracks if id(tr) not in drop]

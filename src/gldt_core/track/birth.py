@@ -2,22 +2,21 @@
 
 ByteTrack-style trackers start a track only from a detection scored ``>= new_track_thresh``;
 low-score boxes may only extend tracks that exist. That assumes a detector confident on its true
-targets. The small detectors shipped here are not: on one held-out Halmstad clip (V_DRONE_011)
-AM-YOLO found the drone in 57 of its first 60 frames at 0.13-0.24, once at 0.25, and the tracker
-started no track for 117 frames, so the GL-DT schedule searched with the global detector all that
-time. Clutter rarely comes back at the same place frame after frame; a small target does (and,
-as it turned out, so does a bird).
+targets. The small detectors shipped here are not always: on some held-out Halmstad clips AM-YOLO
+finds the drone in almost every frame but scores it below the new-track threshold, the tracker
+starts no track, and the GL-DT schedule keeps searching with the global detector all that time.
+Clutter rarely comes back at the same place frame after frame; a small target does (and, as it
+turned out, so does a bird).
 
 :class:`LowScoreBirth` keeps *candidates*: chains of unclaimed low-score detections, one per
 frame, each within a distance gate of the one before. A chain that reaches ``frames`` links
 gives a new track; a chain that misses a frame is dropped. It only sees what the association
 stages left over, so it never competes with a live track for a detection.
 
-Off by default (``low_score_birth_frames: 0``): the trackers and the pipeline keep ByteTrack's
-birth rule. Measured with the shipped detectors (2026-12-01, README "Low-score birth"): on the
-clips the thresholds are tuned on, 15 frames cost 1.1 MOTA and doubled the false drone tracks on
-bird clips (0.443 vs 0.235 boxes per frame), because a bird, too, is a real object that comes
-back at the same place frame after frame; it cut the GD share from 46 % to 34 %.
+Off by default (``low_score_birth_frames: 0``): the trackers and the GL-DT system keep ByteTrack's
+birth rule. With the shipped detectors it shortened the global detector's search but cost MOTA
+and multiplied the false drone tracks on bird clips, because a bird, too, is a real object that
+comes back at the same place frame after frame (docs/experiment-log.md, Tracking).
 """
 
 from __future__ import annotations
@@ -25,6 +24,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+
+from gldt_core.track.assignment import assign
+from gldt_core.track.boxes import midpoint
 
 #: A chain's next detection must have its centre within this many box diagonals of the last one
 #: (plus :data:`GATE_MIN_PX`): at 30 Hz a small drone moves about its own size per frame or less.
@@ -60,8 +62,6 @@ class LowScoreBirth:
         Each detection extends at most one chain (nearest first), each chain takes at most one
         detection; an unmatched detection starts a chain of one, an unmatched chain is dropped.
         """
-        from gldt_core.track.base import assign  # the trackers' own matcher (base imports this module)
-
         rows = [int(d) for d in np.asarray(unclaimed, dtype=np.int64).reshape(-1)]
         boxes = np.asarray(dets, dtype=np.float64)[rows, :4] if rows else np.zeros((0, 4))
         extended: list[Candidate] = []
@@ -96,4 +96,4 @@ class LowScoreBirth:
 
 
 def _centre(boxes: np.ndarray) -> np.ndarray:
-    return np.stack([(boxes[:, 0] + boxes[:, 2]) * 0.5, (boxes[:, 1] + boxes[:, 3]) * 0.5], axis=1)
+    return midpoint(boxes[:, :2], boxes[:, 2:4])

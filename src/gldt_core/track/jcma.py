@@ -1,4 +1,4 @@
-"""JCMA: the joint cost of eqs. 9-15, vectorised over all (track, detection) pairs.
+"""JCMA: the joint cost of eqs. 9-15 for all (track, detection) pairs of an association pool.
 
 ``Cost = w1 C_iou + w2 C_dist + w3 C_motion + w4 C_rel`` with
 
@@ -26,6 +26,12 @@ Choices where the paper is loose, and why:
 * Gating (the paper gives none): a pair whose cost exceeds the stage threshold, or that neither
   overlaps nor lies within ``s_ij`` (``C_iou = 1`` and ``C_dist = 1``), cannot match. Without the
   gate the Hungarian step would marry any leftover detection to any leftover track.
+
+Each term is written once, in :func:`pair_cost` (eqs. 9-14) and :func:`unit_vector` (eq. 15), on
+operands that are Python floats or numpy arrays (:mod:`gldt_core.track.fastpath`). :func:`jcma_cost`
+evaluates them on arrays broadcast over every pair of the pool, or, for a small pool
+(:func:`gldt_core.track.fastpath.on_floats`), pair by pair on floats. The mean of eq. 15 is a
+running sum over k on floats and one matrix product on arrays.
 """
 
 from __future__ import annotations
@@ -33,16 +39,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Generic
 
 import numpy as np
 
-from gldt_core.track.boxes import iou_xyxy
-
-#: Pools of at most this many (track, detection) pairs, with at most SMALL_POOL_CONTEXT context
-#: objects, are costed on Python floats (:func:`jcma_cost_rows`): at a handful of targets the
-#: ~100 numpy calls of the vectorised path cost ~10x more than the arithmetic itself.
-SMALL_POOL_PAIRS = 16
-SMALL_POOL_CONTEXT = 8
+from gldt_core.track.boxes import centre_size, iou, midpoint
+from gldt_core.track.fastpath import ARRAYS, FLOATS, Mask, Ops, V, on_floats
 
 
 @dataclass(frozen=True)
@@ -62,110 +64,205 @@ class JcmaWeights:
     min_speed: float = 1.0
 
 
-@dataclass
-class TrackMotion:
-    """Per-track arrays the cost needs, each with one row per track of the pool."""
+#: The columns of :attr:`TrackMotion.table`.
+MOTION_COLUMNS = ("x1", "y1", "x2", "y2", "last_cx", "last_cy", "elapsed_ref", "vx_avg", "vy_avg", "vx_last", "vy_last")
 
-    pred_xyxy: np.ndarray  # (T, 4) predicted boxes at the frame time
-    last_obs_c: np.ndarray  # (T, 2) last observed centre
-    elapsed_ref: np.ndarray  # (T,) reference frames since the last observation (>0)
-    v_avg: np.ndarray  # (T, 2) mean filtered velocity, px per reference frame
-    v_last: np.ndarray  # (T, 2) last filtered velocity, px per reference frame
-    has_motion: np.ndarray  # (T,) bool: at least two observations
+
+@dataclass(slots=True)
+class TrackMotion:
+    """What the cost needs of each track of the pool. ``rows[i]`` starts with track i's
+    :data:`MOTION_COLUMNS` (predicted box at the frame time; last observed centre; reference frames
+    since that observation, > 0; mean and last filtered velocity in px per reference frame), further
+    entries are ignored; ``has_motion[i]``: whether track i has at least two observations. Plain
+    Python rows, so that a small pool is costed without building arrays."""
+
+    rows: Sequence[Sequence[float]]
+    has_motion: Sequence[bool]
+
+    @classmethod
+    def from_fields(
+        cls,
+        pred_xyxy: np.ndarray,
+        last_obs_c: np.ndarray,
+        elapsed_ref: np.ndarray,
+        v_avg: np.ndarray,
+        v_last: np.ndarray,
+        has_motion: np.ndarray,
+    ) -> TrackMotion:
+        """From per-field arrays: ``(T, 4)``, ``(T, 2)``, ``(T,)``, ``(T, 2)``, ``(T, 2)``, ``(T,)``."""
+        table = np.column_stack([pred_xyxy, last_obs_c, elapsed_ref, v_avg, v_last]).astype(np.float64)
+        return cls(table.tolist(), np.asarray(has_motion, dtype=bool).tolist())
+
+    def table(self) -> np.ndarray:
+        """The rows' :data:`MOTION_COLUMNS` as a ``(T, 11)`` array."""
+        return np.array(self.rows, dtype=np.float64).reshape(len(self.rows), -1)[:, : len(MOTION_COLUMNS)]
+
+
+@dataclass(slots=True)
+class TrackTerms(Generic[V]):
+    """One track's part of the pair cost (or, as arrays, every track's)."""
+
+    x1: V
+    y1: V
+    x2: V
+    y2: V
+    cx: V
+    cy: V
+    size: V  # w + h
+    last_cx: V
+    last_cy: V
+    elapsed: V
+    speed_avg: V
+    heading_avg: V
+    speed_scale: V  # the denominator of C_speed
+    slow: Mask  # mean speed below min_speed: no direction
+    vx_last: V
+    vy_last: V
+
+
+def track_terms(
+    ops: Ops[V],
+    w: JcmaWeights,
+    x1: V,
+    y1: V,
+    x2: V,
+    y2: V,
+    last_cx: V,
+    last_cy: V,
+    elapsed: V,
+    vx_avg: V,
+    vy_avg: V,
+    vx_last: V,
+    vy_last: V,
+) -> TrackTerms[V]:
+    """The quantities of eqs. 10-14 that depend on the track alone (arguments: :data:`MOTION_COLUMNS`)."""
+    cx, cy, width, height = centre_size(x1, y1, x2, y2)
+    speed_avg = ops.hypot(vx_avg, vy_avg)
+    return TrackTerms(
+        x1,
+        y1,
+        x2,
+        y2,
+        cx,
+        cy,
+        width + height,
+        last_cx,
+        last_cy,
+        elapsed,
+        speed_avg,
+        ops.atan2(vy_avg, vx_avg),
+        ops.maximum(w.speed_floor, w.speed_offset + speed_avg),
+        speed_avg < w.min_speed,
+        vx_last,
+        vy_last,
+    )
+
+
+def pair_cost(
+    ops: Ops[V], w: JcmaWeights, t: TrackTerms[V], x1: V, y1: V, x2: V, y2: V, moving: Mask | None
+) -> tuple[V, Mask]:
+    """Eq. 9 without its relational term, and the geometric gate, for track ``t`` and detection box
+    ``x1..y2``. ``moving``: whether the track has a motion history (None: no track of the pool has
+    one, so C_motion is 0 for every pair and is not computed)."""
+    cx, cy, width, height = centre_size(x1, y1, x2, y2)
+    c_iou = 1.0 - iou(ops, t.x1, t.y1, t.x2, t.y2, x1, y1, x2, y2)  # eq. 10
+    dist = ops.hypot(cx - t.cx, cy - t.cy)  # eqs. 11-12
+    scale = (t.size + (width + height)) / 4.0 * 2.0
+    c_dist = ops.minimum(1.0, dist / ops.maximum(scale, 1e-9))
+    cost = w.w_iou * c_iou + w.w_dist * c_dist
+    if moving is not None:  # eqs. 13-14, velocities in px per reference frame
+        vx = (cx - t.last_cx) / t.elapsed
+        vy = (cy - t.last_cy) / t.elapsed
+        speed = ops.hypot(vx, vy)
+        c_speed = ops.minimum(1.0, abs(speed - t.speed_avg) / t.speed_scale)
+        turn = abs((ops.atan2(vy, vx) - t.heading_avg + math.pi) % (2.0 * math.pi) - math.pi)
+        c_direction = ops.where((speed < w.min_speed) | t.slow, 0.0, ops.minimum(1.0, turn / (math.pi / 2.0)))
+        accel = ops.hypot((vx - t.vx_last) / t.elapsed, (vy - t.vy_last) / t.elapsed)
+        c_accel = ops.minimum(1.0, accel / w.accel_scale)
+        c_motion = w.b_speed * c_speed + w.b_direction * c_direction + w.b_acceleration * c_accel
+        cost = cost + w.w_motion * ops.where(moving, c_motion, 0.0)
+    return cost, (c_iou < 1.0) | (c_dist < 1.0)
+
+
+def unit_vector(ops: Ops[V], x: V, y: V) -> tuple[V, V]:
+    """``(x, y)`` scaled to length 1; a zero-length vector (below 1e-9) stays (0, 0)."""
+    length = ops.hypot(x, y)
+    scale = ops.maximum(length, 1e-9)
+    keep = length > 1e-9
+    return ops.where(keep, x / scale, 0.0), ops.where(keep, y / scale, 0.0)
 
 
 def jcma_cost(
     motion: TrackMotion,
     dets_xyxy: np.ndarray,
-    context_c: np.ndarray,
-    context_index: np.ndarray,
+    context_c: np.ndarray | None,
+    context_index: np.ndarray | None,
     weights: JcmaWeights,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Cost matrix ``(T, D)`` of eq. 9 and the geometric gate mask (True = may match).
 
-    ``context_c`` holds the predicted centres of the pool's tracks (the objects k of eq. 15) and
-    ``context_index[i]`` the row of track i in it (excluded from its own sum).
+    ``context_c`` ``(K, 2)`` holds the centres of the objects k of eq. 15 and ``context_index[i]``
+    the row of track i in it (excluded from its own sum; -1: none). ``None`` for both: the objects
+    are the pool's tracks at their predicted centres (JPTrack's choice, see the module docstring).
     """
-    t_boxes = motion.pred_xyxy
-    n_t, n_d = len(t_boxes), len(dets_xyxy)
+    n_t, n_d = len(motion.rows), len(dets_xyxy)
     if n_t == 0 or n_d == 0:
         return np.zeros((n_t, n_d)), np.zeros((n_t, n_d), dtype=bool)
-    if is_small_pool(n_t, n_d, len(context_c)):
-        rows = np.column_stack([t_boxes, motion.last_obs_c, motion.elapsed_ref, motion.v_avg, motion.v_last])
-        return jcma_cost_rows(
-            rows.tolist(),
-            motion.has_motion.tolist(),
+    if (context_c is None) != (context_index is None):
+        raise ValueError("give both context_c and context_index, or neither")
+    if on_floats(n_t * n_d):
+        return _cost_on_floats(
+            motion.rows,
+            motion.has_motion,
             np.asarray(dets_xyxy).tolist(),
-            np.asarray(context_c).tolist(),
-            context_index.tolist(),
+            None if context_c is None else np.asarray(context_c).tolist(),
+            None if context_index is None else np.asarray(context_index).tolist(),
             weights,
         )
-    c_iou = 1.0 - iou_xyxy(t_boxes, dets_xyxy)
-
-    ci = (t_boxes[:, :2] + t_boxes[:, 2:4]) * 0.5
-    cj = (dets_xyxy[:, :2] + dets_xyxy[:, 2:4]) * 0.5
-    wh_i = t_boxes[:, 2:4] - t_boxes[:, :2]
-    wh_j = dets_xyxy[:, 2:4] - dets_xyxy[:, :2]
-    diff = cj[None, :, :] - ci[:, None, :]
-    dist = np.hypot(diff[..., 0], diff[..., 1])
-    scale = (wh_i.sum(1)[:, None] + wh_j.sum(1)[None, :]) / 4.0 * 2.0
-    c_dist = np.minimum(1.0, dist / np.maximum(scale, 1e-9))
-
-    c_motion = _motion_cost(motion, cj, weights)
-    c_rel = relational_cost(ci, cj, context_c, context_index)
-
-    # Summed in eq. 9's order, so the result is bit-identical to the one-expression form; a pool
-    # without motion history adds C_motion = 0 (x + 0.0 == x), i.e. nothing.
-    cost = weights.w_iou * c_iou + weights.w_dist * c_dist
-    if c_motion is not None:
-        cost += weights.w_motion * c_motion
-    cost += weights.w_rel * c_rel
-    gate = ~((c_iou >= 1.0) & (c_dist >= 1.0))
-    return cost, gate
-
-
-def _motion_cost(motion: TrackMotion, cj: np.ndarray, weights: JcmaWeights) -> np.ndarray | None:
-    """C_motion (eqs. 13-14), velocities in px per reference frame; ``None`` when no track of the
-    pool has a motion history (then every pair's C_motion is 0: tentative tracks, first frames)."""
-    has = motion.has_motion
-    if not has.any():
-        return None
-    v_exp = (cj[None, :, :] - motion.last_obs_c[:, None, :]) / motion.elapsed_ref[:, None, None]
-    speed_exp = np.hypot(v_exp[..., 0], v_exp[..., 1])
-    speed_avg = np.hypot(motion.v_avg[:, 0], motion.v_avg[:, 1])
-    c_speed = np.minimum(
-        1.0,
-        np.abs(speed_exp - speed_avg[:, None])
-        / np.maximum(weights.speed_floor, weights.speed_offset + speed_avg)[:, None],
+    return _cost_on_arrays(
+        motion.table(),
+        np.asarray(motion.has_motion, dtype=bool),
+        np.asarray(dets_xyxy, dtype=np.float64),
+        None if context_c is None else np.asarray(context_c, dtype=np.float64).reshape(-1, 2),
+        None if context_index is None else np.asarray(context_index, dtype=np.int64),
+        weights,
     )
-    ang_exp = np.arctan2(v_exp[..., 1], v_exp[..., 0])
-    ang_avg = np.arctan2(motion.v_avg[:, 1], motion.v_avg[:, 0])
-    d_theta = np.abs((ang_exp - ang_avg[:, None] + np.pi) % (2.0 * np.pi) - np.pi)
-    c_dir = np.minimum(1.0, d_theta / (np.pi / 2.0))
-    c_dir[(speed_exp < weights.min_speed) | (speed_avg[:, None] < weights.min_speed)] = 0.0
-    accel = (v_exp - motion.v_last[:, None, :]) / motion.elapsed_ref[:, None, None]
-    c_acc = np.minimum(1.0, np.hypot(accel[..., 0], accel[..., 1]) / weights.accel_scale)
-    c_motion = weights.b_speed * c_speed + weights.b_direction * c_dir + weights.b_acceleration * c_acc
-    if not has.all():
-        c_motion[~has] = 0.0
-    return c_motion
+
+
+def _cost_on_arrays(
+    table: np.ndarray,
+    has: np.ndarray,
+    dets: np.ndarray,
+    context_c: np.ndarray | None,
+    context_index: np.ndarray | None,
+    w: JcmaWeights,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`jcma_cost` with tracks as ``(T, 1)`` and detections as ``(D,)`` columns."""
+    t = track_terms(ARRAYS, w, *(table[:, k, None] for k in range(len(MOTION_COLUMNS))))
+    moving = has[:, None] if has.any() else None
+    cost, gate = pair_cost(ARRAYS, w, t, dets[:, 0], dets[:, 1], dets[:, 2], dets[:, 3], moving)
+    ci = np.column_stack([t.cx[:, 0], t.cy[:, 0]])
+    cj = midpoint(dets[:, :2], dets[:, 2:4])
+    if context_c is None or context_index is None:
+        context_c, context_index = ci, np.arange(len(ci))
+    return cost + w.w_rel * relational_cost(ci, cj, context_c, context_index), np.asarray(gate)
 
 
 def relational_cost(ci: np.ndarray, cj: np.ndarray, context_c: np.ndarray, context_index: np.ndarray) -> np.ndarray:
-    """Eq. 15 for all pairs: ``1 - mean_k cos(c_k - c_i, c_k - c_j)`` over context objects k != i.
+    """Eq. 15 for all pairs, on arrays: ``1 - mean_k cos(c_k - c_i, c_k - c_j)`` over context
+    objects k != i (``ci`` ``(T, 2)``, ``cj`` ``(D, 2)``, ``context_c`` ``(K, 2)``).
 
     The cosine sum is one matrix product of unit vectors, ``(T, 2K) @ (2K, D)``, so the cost stays
-    small at 50 targets; a zero-length vector is a zero unit vector (cos 0).
+    small at 50 targets.
     """
     n_t, n_d, n_k = len(ci), len(cj), len(context_c)
     if n_k <= 1:
         return np.zeros((n_t, n_d))
-    a = context_c[None, :, :] - ci[:, None, :]  # (T, K, 2)
-    b = context_c[:, None, :] - cj[None, :, :]  # (K, D, 2)
-    na = np.hypot(a[..., 0], a[..., 1])
-    nb = np.hypot(b[..., 0], b[..., 1])
-    a_unit = np.where(na[..., None] > 1e-9, a / np.maximum(na, 1e-9)[..., None], 0.0)
-    b_unit = np.where(nb[..., None] > 1e-9, b / np.maximum(nb, 1e-9)[..., None], 0.0)
+    context_c = np.asarray(context_c, dtype=np.float64)
+    ax, ay = unit_vector(ARRAYS, context_c[None, :, 0] - ci[:, 0, None], context_c[None, :, 1] - ci[:, 1, None])
+    bx, by = unit_vector(ARRAYS, context_c[:, 0, None] - cj[None, :, 0], context_c[:, 1, None] - cj[None, :, 1])
+    a_unit = np.stack([ax, ay], axis=-1)  # (T, K, 2)
+    b_unit = np.stack([bx, by], axis=1)  # (K, 2, D)
     mask = np.ones((n_t, n_k))
     valid = context_index >= 0
     if valid.all():
@@ -173,7 +270,7 @@ def relational_cost(ci: np.ndarray, cj: np.ndarray, context_c: np.ndarray, conte
     else:
         mask[np.flatnonzero(valid), context_index[valid]] = 0.0
     a_unit *= mask[..., None]
-    total = a_unit.reshape(n_t, 2 * n_k) @ b_unit.transpose(0, 2, 1).reshape(2 * n_k, n_d)
+    total = a_unit.reshape(n_t, 2 * n_k) @ b_unit.reshape(2 * n_k, n_d)
     counts = mask.sum(1)
     has = counts > 0
     if has.all():
@@ -183,165 +280,61 @@ def relational_cost(ci: np.ndarray, cj: np.ndarray, context_c: np.ndarray, conte
     return out
 
 
-def is_small_pool(n_tracks: int, n_dets: int, n_context: int) -> bool:
-    """Whether :func:`jcma_cost_rows` (Python floats) is the cheaper way to cost this pool."""
-    return n_tracks * n_dets <= SMALL_POOL_PAIRS and n_context <= SMALL_POOL_CONTEXT
-
-
-def jcma_cost_rows(
+def _cost_on_floats(
     track_rows: Sequence[Sequence[float]],
     has_motion: Sequence[bool],
     det_rows: Sequence[Sequence[float]],
-    context: Sequence[Sequence[float]],
-    context_index: Sequence[int],
-    weights: JcmaWeights,
+    context: Sequence[Sequence[float]] | None,
+    context_index: Sequence[int] | None,
+    w: JcmaWeights,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`jcma_cost` for a small pool given as Python rows, computed on Python floats.
-
-    ``track_rows[i]`` starts with the fields of :class:`TrackMotion` in order (predicted box x1, y1,
-    x2, y2, last observed centre x, y, elapsed reference frames, v_avg x, y, v_last x, y; further
-    entries are ignored), ``det_rows[j]`` with the detection box, ``context[k]`` is an (x, y) centre.
-    A caller that already holds these numbers as floats (JPTrack) skips six small arrays per call.
-
-    Every term is the vectorised path's IEEE operations in the same order, so the values are the
-    same (``tests/test_track_small_pools.py`` compares both paths), with two deliberate details:
-
-    * ``hypot`` is numpy's, evaluated in one batched call (``math.hypot`` is a different, more
-      accurate algorithm that differs from libm's in the last bit for ~0.5 % of inputs);
-      ``math.atan2`` is libm's ``atan2``, which is what ``np.arctan2`` calls on strided views
-      on AVX2 machines. On AVX-512 ones numpy has its own SIMD ``hypot``/``arctan2`` kernels, and
-      the two paths can differ by a few ulp (~1e-16 in a cost; the tests allow 1e-14).
-    * The cosine sum of eq. 15 is added sequentially over k. The vectorised path does it as one BLAS
-      product, whose last bit depends on the kernel OpenBLAS picks (FMA, and for a single row or
-      column even on the arrays' memory alignment), so that term agrees to ~1e-15, not bit for bit.
-
-    ``min``/``max`` are written as conditional expressions (same values for these finite inputs,
-    a fraction of a builtin call's cost).
-    """
-    w = weights
-    t_rows = [row[:4] for row in track_rows]
-    d_rows = [row[:4] for row in det_rows]
-    n_t, n_d = len(t_rows), len(d_rows)
-    if n_t == 0 or n_d == 0:
-        return np.zeros((n_t, n_d)), np.zeros((n_t, n_d), dtype=bool)
-    ci = [((x1 + x2) * 0.5, (y1 + y2) * 0.5) for x1, y1, x2, y2 in t_rows]
-    cj = [((x1 + x2) * 0.5, (y1 + y2) * 0.5) for x1, y1, x2, y2 in d_rows]
-    ctx = list(context) if len(context) > 1 else []
-    n_k = len(ctx)
-    has = list(has_motion)
-    any_motion = True in has
-
-    # Every vector whose length is needed, for one np.hypot call, in this order: centre offsets
-    # (T*D); with motion, expected velocities (T*D), accelerations (T*D) and mean velocities (T);
-    # with context, the track-side (T*K) and detection-side (K*D) relational vectors.
-    xs = [jx - ix for ix, _ in ci for jx, _ in cj]
-    ys = [jy - iy for _, iy in ci for _, jy in cj]
-    if any_motion:
-        v_avg = [(row[7], row[8]) for row in track_rows]
-        v_exp = [((jx - row[4]) / row[6], (jy - row[5]) / row[6]) for row in track_rows for jx, jy in cj]
-        accel = [
-            ((vx - row[9]) / row[6], (vy - row[10]) / row[6])
-            for i, row in enumerate(track_rows)
-            for vx, vy in v_exp[i * n_d : (i + 1) * n_d]
-        ]
-        xs += [v[0] for v in v_exp] + [a[0] for a in accel] + [v[0] for v in v_avg]
-        ys += [v[1] for v in v_exp] + [a[1] for a in accel] + [v[1] for v in v_avg]
-    if n_k:
-        xs += [kx - ix for ix, _ in ci for kx, _ in ctx] + [kx - jx for kx, _ in ctx for jx, _ in cj]
-        ys += [ky - iy for _, iy in ci for _, ky in ctx] + [ky - jy for _, ky in ctx for _, jy in cj]
-    norms = np.hypot(np.array(xs), np.array(ys)).tolist()
-    n_p = n_t * n_d
-    dist = norms[:n_p]
-    if any_motion:
-        speed_exp = norms[n_p : 2 * n_p]
-        accel_norm = norms[2 * n_p : 3 * n_p]
-        speed_avg = norms[3 * n_p : 3 * n_p + n_t]
-
-    # Eq. 15's unit vectors: rows a_i (own context object zeroed, as the vectorised path's mask
-    # does) and columns b_j, so C_rel is a running sum over k of a_ik . b_kj.
-    rel_rows: list[list[float]] = []  # per track i: [a_i0x, a_i0y, a_i1x, ...]
-    rel_cols: list[list[float]] = []  # per detection j: [b_0jx, b_0jy, b_1jx, ...]
-    counts: list[int] = []
-    if n_k:
-        m = n_k * (n_t + n_d)
-        units: list[float] = []
-        for x, y, r in zip(xs[-m:], ys[-m:], norms[-m:]):
-            if r > 1e-9:
-                units += (x / r, y / r)
-            else:
-                units += (0.0, 0.0)
-        for i, own in enumerate(context_index):
-            row = units[2 * i * n_k : 2 * (i + 1) * n_k]
-            inside = 0 <= own < n_k
-            if inside:
-                row[2 * own] *= 0.0
-                row[2 * own + 1] *= 0.0
-            rel_rows.append(row)
-            counts.append(n_k - 1 if inside else n_k)
-        b_units = units[2 * n_t * n_k :]
-        rel_cols = [
-            [v for k in range(n_k) for v in b_units[2 * (k * n_d + j) : 2 * (k * n_d + j) + 2]] for j in range(n_d)
-        ]
-
-    pi, two_pi, half_pi = math.pi, 2.0 * math.pi, math.pi / 2.0
-    w_iou, w_dist, w_motion, w_rel = w.w_iou, w.w_dist, w.w_motion, w.w_rel
-    b_speed, b_dir, b_acc = w.b_speed, w.b_direction, w.b_acceleration
-    min_speed, accel_scale = w.min_speed, w.accel_scale
-    det_geom = [(x1, y1, x2, y2, (x2 - x1) * (y2 - y1), (x2 - x1) + (y2 - y1)) for x1, y1, x2, y2 in d_rows]
+    """:func:`jcma_cost` pair by pair on Python floats (rows as in :func:`jcma_cost`'s arrays)."""
+    tracks = [track_terms(FLOATS, w, *row[: len(MOTION_COLUMNS)]) for row in track_rows]
+    n_t, n_d = len(tracks), len(det_rows)
+    if context is None or context_index is None:
+        context, context_index = [(t.cx, t.cy) for t in tracks], range(n_t)
+    relational = _relational_on_floats(tracks, det_rows, context, context_index)
     cost: list[float] = []
     gate: list[bool] = []
-    for i, (ax1, ay1, ax2, ay2) in enumerate(t_rows):
-        area_t = (ax2 - ax1) * (ay2 - ay1)
-        size_t = (ax2 - ax1) + (ay2 - ay1)
-        moving = any_motion and has[i]
-        if moving:
-            sa = speed_avg[i]
-            ang_avg = math.atan2(v_avg[i][1], v_avg[i][0])
-            offset = w.speed_offset + sa
-            speed_den = offset if offset > w.speed_floor else w.speed_floor
-            sa_slow = sa < min_speed
-        count = counts[i] if n_k else 0
-        rel_row = rel_rows[i] if n_k else []
-        for j, (bx1, by1, bx2, by2, area_d, size_d) in enumerate(det_geom):
-            p = i * n_d + j
-            # Eq. 10 (geometry.iou_xyxy's operations).
-            iw = (ax2 if ax2 < bx2 else bx2) - (ax1 if ax1 > bx1 else bx1)
-            ih = (ay2 if ay2 < by2 else by2) - (ay1 if ay1 > by1 else by1)
-            inter = (iw if iw > 0.0 else 0.0) * (ih if ih > 0.0 else 0.0)
-            union = area_t + area_d - inter
-            c_iou = 1.0 - (inter / (union if union > 1e-12 else 1e-12) if union > 0 else 0.0)
-            # Eqs. 11-12.
-            scale = (size_t + size_d) / 4.0 * 2.0
-            c_dist = dist[p] / (scale if scale > 1e-9 else 1e-9)
-            if c_dist > 1.0:
-                c_dist = 1.0
-            c = w_iou * c_iou + w_dist * c_dist
-            # Eqs. 13-14; a track without motion history adds 0 (when another track has one).
-            if moving:
-                se = speed_exp[p]
-                c_speed = abs(se - sa) / speed_den
-                if c_speed > 1.0:
-                    c_speed = 1.0
-                if se < min_speed or sa_slow:
-                    c_dir = 0.0
-                else:
-                    vx, vy = v_exp[p]
-                    c_dir = abs((math.atan2(vy, vx) - ang_avg + pi) % two_pi - pi) / half_pi
-                    if c_dir > 1.0:
-                        c_dir = 1.0
-                c_acc = accel_norm[p] / accel_scale
-                if c_acc > 1.0:
-                    c_acc = 1.0
-                c += w_motion * (b_speed * c_speed + b_dir * c_dir + b_acc * c_acc)
-            elif any_motion:
-                c += w_motion * 0.0
-            # Eq. 15.
-            c_rel = 0.0
-            if count:
-                total = 0.0
-                for u, v in zip(rel_row, rel_cols[j]):
-                    total += u * v
-                c_rel = 1.0 - total / count
-            cost.append(c + w_rel * c_rel)
-            gate.append(c_iou < 1.0 or c_dist < 1.0)
+    for i, (t, has) in enumerate(zip(tracks, has_motion)):
+        # A track without motion history adds no motion term (the array path adds 0 for it).
+        moving = True if has else None
+        for j, (x1, y1, x2, y2, *_) in enumerate(det_rows):
+            c, g = pair_cost(FLOATS, w, t, x1, y1, x2, y2, moving)
+            cost.append(c + w.w_rel * relational[i][j])
+            gate.append(bool(g))
     return np.array(cost).reshape(n_t, n_d), np.array(gate).reshape(n_t, n_d)
+
+
+def _relational_on_floats(
+    tracks: Sequence[TrackTerms[float]],
+    det_rows: Sequence[Sequence[float]],
+    context: Sequence[Sequence[float]],
+    context_index: Sequence[int],
+) -> list[list[float]]:
+    """:func:`relational_cost` on Python floats, with the cosine sum added k by k."""
+    n_k = len(context)
+    if n_k <= 1:
+        return [[0.0] * len(det_rows) for _ in tracks]
+    det_centres = [centre_size(x1, y1, x2, y2)[:2] for x1, y1, x2, y2, *_ in det_rows]
+    # to_context[k][j]: unit vector from detection j to object k.
+    to_context = [[unit_vector(FLOATS, kx - jx, ky - jy) for jx, jy in det_centres] for kx, ky in context]
+    out = []
+    for t, own in zip(tracks, context_index):
+        # The unit vectors from track i to each object k, its own object zeroed as the array path's mask does.
+        from_track = [unit_vector(FLOATS, kx - t.cx, ky - t.cy) for kx, ky in context]
+        inside = 0 <= own < n_k
+        if inside:
+            ox, oy = from_track[own]
+            from_track[own] = (ox * 0.0, oy * 0.0)
+        count = n_k - 1 if inside else n_k
+        row = []
+        for j in range(len(det_centres)):
+            total = 0.0
+            for (ax, ay), column in zip(from_track, to_context):
+                bx, by = column[j]
+                total += ax * bx
+                total += ay * by
+            row.append(1.0 - total / count if count else 0.0)
+        out.append(row)
+    return out

@@ -24,22 +24,24 @@ Table I value is a config field with the paper's default. What the paper leaves 
   samples sit far behind the target. With them in, a target seen for 6-8 frames and hidden for
   a second came back under a new id.
 * ``pmr_vel_std`` (2 px per reference frame) is the unmodelled velocity change allowed during an
-  occlusion: on the benchmark's real drone clips 0.5 recovered too few tracks after 1-2 s bursts
-  (IDSW 49 vs 32 at 2.0 over 40 clips), while wider gates start to pick clutter.
+  occlusion: on the benchmark's real drone clips a tighter gate recovered too few tracks after
+  1-2 s bursts of misses, while wider gates start to pick clutter (docs/experiment-log.md).
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from gldt_core.track.base import MultiStageTracker, assign, iou_pair_cost
-from gldt_core.track.jcma import JcmaWeights, TrackMotion, is_small_pool, jcma_cost, jcma_cost_rows
-from gldt_core.track.pmr import c_time, fit_pmr, p_match_many
-from gldt_core.track.state import Track, TrackState, box_row
+from gldt_core.track.assignment import assign
+from gldt_core.track.base import MultiStageTracker, iou_pair_cost
+from gldt_core.track.boxes import midpoint
+from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
+from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
+from gldt_core.track.pmr import c_time, fit_pmr, floor_variance, p_match_many
+from gldt_core.track.state import Track, TrackState, box_row, update_tracks
 
 #: History samples from a track's first this-many updates are not used by PMR (module docstring).
 PMR_SETTLING_HITS = 3
@@ -109,10 +111,6 @@ class JPTrackConfig:
         )
 
 
-#: Up to this many (lost track, candidate) pairs the PMR pre-gate runs on Python floats.
-SMALL_GATE_PAIRS = 64
-
-
 class JPTrack(MultiStageTracker):
     """``JPTrack(config).update(dets, t) -> (M, 6) [x1, y1, x2, y2, track_id, score]``."""
 
@@ -161,35 +159,15 @@ class JPTrack(MultiStageTracker):
         n_t, n_d = len(tracks), len(det_idx)
         if n_t == 0 or n_d == 0:
             return np.zeros((n_t, n_d)), np.zeros((n_t, n_d), dtype=bool), thresh
-        if is_small_pool(n_t, n_d, n_t):  # Python rows straight from the per-frame cache
-            rows = self._motion_rows_for(tracks, t)
-            cost, gate = jcma_cost_rows(
-                rows,
-                [tr.hits >= 2 for tr in tracks],
-                dets[det_idx, :4].tolist(),
-                [row[11:13] for row in rows],
-                range(n_t),
-                self._weights,
-            )
-        else:
-            motion, centres = self._motion(tracks, t)
-            cost, gate = jcma_cost(motion, dets[det_idx, :4], centres, np.arange(n_t), self._weights)
+        motion = TrackMotion(self._motion_rows_for(tracks, t), [tr.hits >= 2 for tr in tracks])
+        # Eq. 15's other objects: the pool's tracks at their predicted centres.
+        cost, gate = jcma_cost(motion, dets[det_idx, :4], None, None, self._weights)
         return cost, gate & (cost <= thresh), thresh
 
-    def _motion(self, tracks: Sequence[Track], t: float) -> tuple[TrackMotion, np.ndarray]:
-        """The pool's :class:`TrackMotion` and predicted centres ``(T, 2)`` (JCMA's context).
-
-        All per-track numbers go into one ``(T, 13)`` array built by a single ``np.array`` call,
-        and the fields are column views of it: at a few targets building six small arrays cost more
-        than the cost matrix. The box is :func:`state.boxes_xyxy`'s and the centre
-        ``(x1 + x2) * 0.5``, the same float operations as the vectorised forms."""
-        a = np.array(self._motion_rows_for(tracks, t), dtype=np.float64)
-        has = np.array([tr.hits >= 2 for tr in tracks], dtype=bool)
-        return TrackMotion(a[:, 0:4], a[:, 4:6], a[:, 6], a[:, 7:9], a[:, 9:11], has), a[:, 11:13]
-
     def _motion_rows_for(self, tracks: Sequence[Track], t: float) -> list[tuple[float, ...]]:
-        """:meth:`_motion_row` of each track. A row is kept for the frame (stage 2 re-costs the
-        tracks stage 1 left unmatched); any update in between bumps ``hits`` and so invalidates it."""
+        """:meth:`_motion_row` of each track (the :class:`TrackMotion` rows of the pool). A row is
+        kept for the frame (stage 2 re-costs the tracks stage 1 left unmatched); any update in
+        between bumps ``hits`` and so invalidates it."""
         if t != self._motion_t:
             self._motion_rows.clear()
             self._motion_t = t
@@ -204,13 +182,13 @@ class JPTrack(MultiStageTracker):
         return rows
 
     def _motion_row(self, tr: Track, t: float) -> tuple[float, ...]:
-        """One track's row of :meth:`_motion`: predicted box, last observed centre, elapsed
-        reference frames, mean and last velocity, predicted centre."""
+        """One track's motion row, the :data:`gldt_core.track.jcma.MOTION_COLUMNS`: predicted box,
+        last observed centre, elapsed reference frames, mean and last velocity."""
         x1, y1, x2, y2 = box_row(tr)
         (ax, ay), (lx, ly) = self._velocities(tr)
         ox, oy = tr.last_obs_xy
         elapsed = max((t - tr.last_update_t) * self.config.ref_fps, 1e-6)
-        return (x1, y1, x2, y2, ox, oy, elapsed, ax, ay, lx, ly, (x1 + x2) * 0.5, (y1 + y2) * 0.5)
+        return (x1, y1, x2, y2, ox, oy, elapsed, ax, ay, lx, ly)
 
     def _velocities(self, tr: Track) -> tuple[tuple[float, float], tuple[float, float]]:
         """Mean (over ``state.MOTION_WINDOW`` observations) and last filtered velocity, in px per
@@ -242,7 +220,7 @@ class JPTrack(MultiStageTracker):
         long_lost = [i for i, tr in enumerate(lost) if t - tr.last_update_t >= c.pmr_min_lost_s - 1e-9]
         if not long_lost and c.tau_t >= 0.0:
             return rest_high, rest_low  # every score would be 0: nothing can pass the gate
-        centres = (dets[cand, :2] + dets[cand, 2:4]) * 0.5
+        centres = midpoint(dets[cand, :2], dets[cand, 2:4])
         rows = []
         if long_lost:
             worth = self._worth_modelling([lost[i] for i in long_lost], centres, t)
@@ -263,49 +241,57 @@ class JPTrack(MultiStageTracker):
             if c.tau_t >= 0.0 and not (final > c.tau_t).any():
                 return rest_high, rest_low  # no candidate passes the gate (most frames)
             score[rows] = final
-        used = set()
         # As a cost 1 - P_final with limit 1 - tau_t: a pair is worth matching exactly when it
         # passes the gate, and a conflict goes to the largest total margin sum(P_final - tau_t).
-        for r, col in assign(1.0 - score, score > c.tau_t, 1.0 - c.tau_t):
-            tr, d = lost[r], int(cand[col])
-            tr.update(dets[d, :4], dets[d, 4], t, rel[d])
+        pairs = assign(1.0 - score, score > c.tau_t, 1.0 - c.tau_t)
+        if not pairs:
+            return rest_high, rest_low
+        recovered = [lost[r] for r, _ in pairs]
+        used = [int(cand[col]) for _, col in pairs]
+        update_tracks(recovered, dets[used, :4], dets[used, 4], t, [rel[d] for d in used])
+        for tr in recovered:
             tr.state = TrackState.RECOVERED
             updated.add(id(tr))
-            used.add(d)
-        if not used:
-            return rest_high, rest_low
         keep_high = np.asarray([d for d in rest_high if d not in used], dtype=np.int64)
         keep_low = np.asarray([d for d in rest_low if d not in used], dtype=np.int64)
         return keep_high, keep_low
 
     def _worth_modelling(self, lost: list[Track], centres: np.ndarray, t: float) -> list[bool]:
         """Cheap pre-gate, one boolean per lost track: fit/evaluate a mixture only if some candidate
-        lies within a generous radius of the track's Kalman prediction (3 floor sigmas, half the
-        distance travelled since the loss, and two box sizes). P_final > tau_t needs the detection
-        within about one sigma of a component, and components sit near the constant-velocity
-        prediction, so this rejects only hopeless pairs; it keeps EM off frames where nothing is
-        near a lost track.
-
-        Up to ``SMALL_GATE_PAIRS`` (track, candidate) pairs the test runs on Python floats (the same
-        operations; the speed's hypot stays numpy's), else vectorised."""
+        centre lies within :func:`recovery_radius` of the track's Kalman prediction. P_final > tau_t
+        needs the detection within about one sigma of a component, and components sit near the
+        constant-velocity prediction, so this rejects only hopeless pairs; it keeps EM off frames
+        where nothing is near a lost track."""
         c = self.config
+        if on_floats(len(lost) * len(centres)):
+            points = centres.tolist()
+            worth = []
+            for tr in lost:
+                cx, cy, w, h, vx, vy = tr.kf.mean[:6].tolist()
+                steps = (t - tr.last_update_t) * c.ref_fps
+                radius = recovery_radius(FLOATS, w, h, vx, vy, steps, c)
+                worth.append(any(squared_distance(x, y, cx, cy) <= radius * radius for x, y in points))
+            return worth
         means = np.array([tr.kf.mean[:6] for tr in lost])
-        speed = np.hypot(means[:, 4], means[:, 5]) / c.ref_fps
-        if len(lost) * len(centres) > SMALL_GATE_PAIRS:
-            steps = (t - np.array([tr.last_update_t for tr in lost])) * c.ref_fps
-            size = 0.5 * (means[:, 2] + means[:, 3])
-            floor = (c.pmr_pos_std_size * size) ** 2 + (c.pmr_vel_std * steps) ** 2
-            radius = 3.0 * np.sqrt(floor) + 0.5 * speed * steps + 2.0 * size
-            d2 = np.sum((centres[None, :, :] - means[:, None, :2]) ** 2, axis=2)
-            return np.any(d2 <= (radius * radius)[:, None], axis=1).tolist()
-        pts = centres.tolist()
-        worth = []
-        for tr, (mx, my, mw, mh, _, _), sp in zip(lost, means.tolist(), speed.tolist()):
-            steps = (t - tr.last_update_t) * c.ref_fps
-            size = 0.5 * (mw + mh)
-            pos_std = c.pmr_pos_std_size * size
-            vel_std = c.pmr_vel_std * steps
-            radius = 3.0 * math.sqrt(pos_std * pos_std + vel_std * vel_std) + 0.5 * sp * steps + 2.0 * size
-            r2 = radius * radius
-            worth.append(any((px - mx) * (px - mx) + (py - my) * (py - my) <= r2 for px, py in pts))
-        return worth
+        since_loss = (t - np.array([tr.last_update_t for tr in lost])) * c.ref_fps
+        radii = recovery_radius(ARRAYS, means[:, 2], means[:, 3], means[:, 4], means[:, 5], since_loss, c)
+        d2 = squared_distance(centres[None, :, 0], centres[None, :, 1], means[:, 0, None], means[:, 1, None])
+        return np.any(d2 <= (radii * radii)[:, None], axis=1).tolist()
+
+
+def recovery_radius(ops: Ops[V], w: V, h: V, vx: V, vy: V, steps: V | float, c: JPTrackConfig) -> V:
+    """How far from its Kalman prediction (box ``w x h``, velocity ``vx, vy`` px/s) a lost track's
+    detection may lie, ``steps`` reference frames after the loss, and still be worth modelling:
+    three sigmas of PMR's floor (:func:`gldt_core.track.pmr.floor_variance`), half the distance
+    travelled since the loss, and two box sizes."""
+    size = 0.5 * (w + h)
+    speed = ops.hypot(vx, vy) / c.ref_fps
+    floor = floor_variance(size, steps, c.pmr_pos_std_size, c.pmr_vel_std)
+    return 3.0 * ops.sqrt(floor) + 0.5 * speed * steps + 2.0 * size
+
+
+def squared_distance(x1: V, y1: V, x2: V, y2: V) -> V:
+    """``|(x1, y1) - (x2, y2)|^2``."""
+    dx = x1 - x2
+    dy = y1 - y2
+    return dx * dx + dy * dy

@@ -14,21 +14,21 @@ One departure, for small boxes: the process noise of the box centre has a floor 
 still camera. Air to air, the camera shakes and turns, and that moves every target in the image by
 the same pixels whatever its size: a 6 px drone jumps as far as a 60 px one. With 1/20 of 6 px the
 filter took such jumps for measurement noise, smoothed them away, and its box trailed the target
-by more than the box's own size. Fed the ground truth of the synthetic test scenes
-(`gldt bench ablation --scenes 3 --clips 0 --oracle`), JPTrack on every frame scored 58.7 MOTA;
-with the floors, 98.6. A floor on the velocity noise instead followed the targets as well but made
-every velocity follow the detections' jitter, and the avoidance planner reads those velocities;
-the position floor leaves them as smooth as ByteTrack's (tests/test_track_kalman.py). A new
-track's centre velocity starts with a pixel floor on its uncertainty too
-(:data:`MIN_BIRTH_CENTRE_VELOCITY_STD_PX`). README, "A pixel floor under the filter's position
-noise", has the measurements.
+by more than the box's own size: fed the ground truth of the synthetic test scenes, JPTrack then
+fell far short of following them perfectly, which it does with the floor. A floor on the velocity noise instead
+followed the targets as well but made every velocity follow the detections' jitter, and the
+avoidance planner reads those velocities; the position floor leaves them as smooth as ByteTrack's
+(tests/core/test_track_kalman.py). A new track's centre velocity starts with a pixel floor on its
+uncertainty too (:data:`MIN_BIRTH_CENTRE_VELOCITY_STD_PX`). The measurements behind both floors
+are in docs/experiment-log.md (Tracking).
 
 Why numpy and not ``filterpy.kalman.KalmanFilter`` (which the issue names): the algebra is
-identical (``tests/test_track_kalman.py`` checks our predict/update against filterpy's to 1e-9),
-but a tracker runs the filter for every track on every frame, and filterpy can only do that one
-track at a time. :func:`predict_many` / :func:`update_many` advance and correct all tracks of a
-frame with one batched numpy step each; ``gldt bench tracking`` measures that against a loop of
-filterpy filters at 3 and 50 tracks (the "Kalman" line of its output).
+identical (``tests/core/test_track_kalman.py`` checks our predict/update against filterpy's), but a
+tracker runs the filter for every track on every frame, and filterpy can only do that one track at
+a time. :func:`predict_many` / :func:`update_many` advance and correct all tracks of a frame with
+one batched numpy step each, and a single filter's ``predict``/``update`` are those steps on a
+batch of one; ``gldt bench tracking`` measures them against a loop of filterpy filters at 3 and 50
+tracks (the "Kalman" line of its output).
 """
 
 from __future__ import annotations
@@ -43,18 +43,16 @@ STD_WEIGHT_VELOCITY = 1.0 / 160.0
 MIN_STD_PX = 0.5
 #: Smallest process-noise standard deviation of the box centre (px per reference frame): how far
 #: the camera's own shake and turn can move any target between two frames (module docstring).
-#: ByteTrack's 1/20 of the size reaches it at 30 px. 1.5 gave more MOTA than 1.0 with the shipped
-#: detectors on the real validation clips (README).
+#: ByteTrack's 1/20 of the size reaches it at 30 px. Chosen on the real validation clips with the
+#: shipped detectors (docs/experiment-log.md).
 MIN_CENTRE_PROCESS_STD_PX = 1.5
 #: Smallest standard deviation of a new track's centre velocity (px per reference frame). A drone
 #: can cross the image at a few pixels per frame whatever its size, but ByteTrack's 10/160 of the
 #: size says a new 6 px box is almost surely still (0.4 px per frame; 0.625 with this filter's
-#: 0.5 px floor; ByteTrack's value reaches 2 px per frame at 32 px). With the position floor above taking the innovations, such a filter learnt
-#: a fast small target's velocity too slowly for PMR to bring the track back after an occlusion
-#: (tests/test_track_lost.py).
+#: 0.5 px floor; ByteTrack's value reaches 2 px per frame at 32 px). With the position floor above
+#: taking the innovations, such a filter learnt a fast small target's velocity too slowly for PMR
+#: to bring the track back after an occlusion (tests/core/test_track_lost.py).
 MIN_BIRTH_CENTRE_VELOCITY_STD_PX = 2.0
-
-_H = np.hstack([np.eye(4), np.zeros((4, 4))])
 
 
 def _size_std(w: float, h: float, weight: float) -> np.ndarray:
@@ -90,78 +88,53 @@ class ConstantVelocityKalman:
         self.covariance = np.diag(np.concatenate([std_pos, std_vel]) ** 2)
 
     def transition(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Transition matrix F and process noise Q (diagonal, as a vector) for ``dt`` seconds."""
+        """Transition matrix F and process noise Q (diagonal, as a vector) for ``dt`` seconds: the
+        model of :meth:`predict` as matrices (what a textbook filter such as filterpy's takes)."""
         f = np.eye(8)
         f[0, 4] = f[1, 5] = f[2, 6] = f[3, 7] = dt
-        return f, self._process_noise(dt)
-
-    def _process_noise(self, dt: float) -> np.ndarray:
-        w, h = self.mean[2], self.mean[3]
-        steps = max(dt, 0.0) * self.ref_fps
-        # The expression predict_many uses, on the same floors (_NOISE_FLOOR): one source for both.
-        sizes = np.array([w, h, w, h, w, h, w, h])
-        return (np.maximum(_NOISE_FLOOR, _NOISE_WEIGHT * sizes) * _noise_unit(self.ref_fps)) ** 2 * steps
+        steps = np.array([max(dt, 0.0) * self.ref_fps])
+        return f, _process_noise(self.mean[None, :], steps, _noise_unit(self.ref_fps))[0]
 
     def predicted(self, dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """Mean and covariance ``dt`` seconds ahead, without changing the filter.
-
-        ``F P F^T`` is done as two block row/column operations (F = [[I, dt I], [0, I]]), which is
-        exactly the matrix product and a few times cheaper for 8x8."""
-        mean = self.mean.copy()
-        cov = self.covariance.copy()
-        if dt <= 0.0:
-            return mean, cov
-        q = self._process_noise(dt)
-        mean[:4] += dt * mean[4:]
-        mean[2:4] = np.maximum(mean[2:4], 1e-3)
-        cov[:4, :] += dt * cov[4:, :]
-        cov[:, :4] += dt * cov[:, 4:]
-        cov.reshape(64)[::9] += q  # the diagonal (cov is a fresh contiguous copy)
-        return mean, cov
+        """Mean and covariance ``dt`` seconds ahead (now, for ``dt <= 0``), without changing the filter."""
+        means, covs = predicted_many([self], np.array([dt]))
+        return means[0], covs[0]
 
     def predict(self, dt: float) -> None:
         """Advance the filter by ``dt`` seconds."""
-        if dt <= 0.0:
-            return
-        self.mean, self.covariance = self.predicted(dt)
+        predict_many([self], np.array([dt]))
 
     def measurement_noise(self) -> np.ndarray:
         """R: ByteTrack's size-proportional measurement noise (4x4)."""
-        std = _size_std(self.mean[2], self.mean[3], STD_WEIGHT_POSITION)
-        return np.diag(std**2)
+        return np.diag(_measurement_variances(self.mean[None, :])[0])
 
     def update(self, box_cxcywh: np.ndarray) -> None:
         """Fuse one measured box ``[cx, cy, w, h]``."""
-        p = self.covariance
-        s = p[:4, :4] + self.measurement_noise()
-        gain = np.linalg.solve(s, p[:4, :]).T  # P H^T S^-1 (S symmetric)
-        innovation = np.asarray(box_cxcywh, dtype=np.float64) - self.mean[:4]
-        self.mean = self.mean + gain @ innovation
-        self.covariance = p - gain @ s @ gain.T
-        self.mean[2:4] = np.maximum(self.mean[2:4], 1e-3)
+        update_many([self], np.asarray(box_cxcywh, dtype=np.float64).reshape(1, 4))
 
 
-def predict_many(filters: list[ConstantVelocityKalman], dts: np.ndarray) -> None:
-    """Advance many filters at once (one vectorised step instead of a Python loop of 8x8 ops);
-    the result is exactly that of calling ``predict`` on each (see tests/test_track_kalman.py)."""
-    n = len(filters)
-    if n == 0:
-        return
-    dt = np.maximum(np.asarray(dts, dtype=np.float64), 0.0)
-    ref = _common_ref_fps(filters)
-    means = np.array([f.mean for f in filters])
-    covs = np.array([f.covariance for f in filters])
-    steps = dt * ref
-    # Process noise of all 8 state entries in one expression: position stds
-    # max(floor, w_pos * size), velocity stds max(floor, w_vel * size) * ref_fps (times 1.0 for
-    # positions, which is exact), squared, times the elapsed reference frames.
-    if np.ndim(ref):
-        unit = np.ones((n, 8))
-        unit[:, 4:] = ref[:, None]
-    else:
-        unit = _noise_unit(ref)
+def _process_noise(means: np.ndarray, steps: np.ndarray, unit: np.ndarray) -> np.ndarray:
+    """Diagonal process noise ``(n, 8)`` of filters with states ``means`` over ``steps`` reference
+    frames: position stds ``max(floor, w_pos * size)``, velocity stds ``max(floor, w_vel * size)``
+    times ``ref_fps`` (``unit``: 1 for positions, which is exact), squared, times the steps."""
     q = (np.maximum(_NOISE_FLOOR, _NOISE_WEIGHT * means[:, _NOISE_SIZE]) * unit) ** 2
     q *= steps[:, None]
+    return q
+
+
+def _propagate(means: np.ndarray, covs: np.ndarray, dt: np.ndarray, ref: float | np.ndarray) -> None:
+    """Predict stacked states ``(n, 8)`` and covariances ``(n, 8, 8)`` (fresh arrays, changed in
+    place) ``dt`` seconds ahead (``(n,)``, >= 0; ``ref``: one ``ref_fps`` or one per filter).
+
+    ``F P F^T`` is done as two block row/column operations (F = [[I, dt I], [0, I]]), which is
+    exactly the matrix product and a few times cheaper for 8x8."""
+    n = len(means)
+    if np.ndim(ref):
+        unit = np.ones((n, 8))
+        unit[:, 4:] = np.asarray(ref)[:, None]
+    else:
+        unit = _noise_unit(float(ref))
+    q = _process_noise(means, dt * ref, unit)
     dt_col = dt[:, None]
     means[:, :4] += dt_col * means[:, 4:]
     moved = dt > 0
@@ -173,6 +146,22 @@ def predict_many(filters: list[ConstantVelocityKalman], dts: np.ndarray) -> None
     covs[:, :4, :] += dt_3 * covs[:, 4:, :]
     covs[:, :, :4] += dt_3 * covs[:, :, 4:]
     covs.reshape(n, 64)[:, ::9] += q  # the diagonals, as a strided view (no fancy indexing)
+
+
+def predicted_many(filters: list[ConstantVelocityKalman], dts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Means ``(n, 8)`` and covariances ``(n, 8, 8)`` of many filters, each ``dts[i]`` seconds
+    ahead (no step for ``dts[i] <= 0``), in one vectorised step; the filters do not change."""
+    if not filters:
+        return np.zeros((0, 8)), np.zeros((0, 8, 8))
+    means = np.array([f.mean for f in filters])
+    covs = np.array([f.covariance for f in filters])
+    _propagate(means, covs, np.maximum(np.asarray(dts, dtype=np.float64), 0.0), _common_ref_fps(filters))
+    return means, covs
+
+
+def predict_many(filters: list[ConstantVelocityKalman], dts: np.ndarray) -> None:
+    """Advance many filters at once (:func:`predicted_many`, kept)."""
+    means, covs = predicted_many(filters, dts)
     for f, m, c in zip(filters, means, covs):
         f.mean = m
         f.covariance = c
@@ -196,18 +185,22 @@ def _common_ref_fps(filters: list[ConstantVelocityKalman]) -> float | np.ndarray
     return np.array([f.ref_fps for f in filters])
 
 
+def _measurement_variances(means: np.ndarray) -> np.ndarray:
+    """Diagonal of R ``(n, 4)``: ByteTrack's size-proportional measurement noise of each state."""
+    return np.maximum(MIN_STD_PX, STD_WEIGHT_POSITION * means[:, _WHWH]) ** 2
+
+
 def update_many(filters: list[ConstantVelocityKalman], boxes_cxcywh: np.ndarray) -> None:
     """Fuse one measured box into each filter at once (one batched solve instead of one per
-    track); exactly ``update`` applied to each (see tests/test_track_kalman.py)."""
+    track); exactly ``update`` applied to each (see tests/core/test_track_kalman.py)."""
     n = len(filters)
     if n == 0:
         return
     means = np.array([f.mean for f in filters])
     covs = np.array([f.covariance for f in filters])
-    r = np.maximum(MIN_STD_PX, STD_WEIGHT_POSITION * means[:, _WHWH]) ** 2
     s = covs[:, :4, :4].copy()
-    s.reshape(n, 16)[:, ::5] += r  # the diagonals, as a strided view (no fancy indexing)
-    gain = np.linalg.solve(s, covs[:, :4, :]).transpose(0, 2, 1)  # (n, 8, 4)
+    s.reshape(n, 16)[:, ::5] += _measurement_variances(means)  # the diagonals, as a strided view
+    gain = np.linalg.solve(s, covs[:, :4, :]).transpose(0, 2, 1)  # (n, 8, 4): P H^T S^-1 (S symmetric)
     innovation = np.asarray(boxes_cxcywh, dtype=np.float64) - means[:, :4]
     means = means + np.einsum("nij,nj->ni", gain, innovation)
     covs = covs - gain @ s @ gain.transpose(0, 2, 1)

@@ -41,9 +41,12 @@ Units: velocities in px per reference frame (``ref_fps``), time in seconds, ``ga
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 
 #: Columns of the fitted feature vector (eq. 16).
 FEATURES = ("x_abs", "y_abs", "x_rel", "y_rel", "vx", "vy", "theta", "w")
@@ -113,8 +116,8 @@ def fit_pmr(
     ``backend="sklearn"`` runs ``sklearn.mixture.GaussianMixture``; ``"numpy"`` (default) runs
     :func:`em_full_covariance`, the same algorithm (same initialisation from the same seed, same
     E/M steps, regularisation and stopping rule) without scikit-learn's per-iteration validation,
-    which costs about 1 ms per EM iteration and dominated the tracker's frame time. The test
-    ``tests/test_track_pmr.py`` checks both give the same mixture.
+    whose cost per EM iteration exceeds the iteration itself on an 8-feature history. The test
+    ``tests/core/test_track_pmr.py`` checks both give the same mixture.
     """
     if backend not in ("numpy", "sklearn"):
         raise ValueError(f"PMR backend must be 'numpy' or 'sklearn', got {backend!r}")
@@ -180,6 +183,45 @@ def p_match(
     return p_match_many([model], centers, t, ref_fps, pos_std_size, vel_std)[0]
 
 
+def floor_variance(size: V, steps: V | float, pos_std_size: float, vel_std: float) -> V:
+    """The variance added to a propagated position (module docstring): detector jitter of
+    ``pos_std_size`` box sizes plus ``vel_std`` px per reference frame of unmodelled velocity
+    change over ``steps`` reference frames."""
+    pos_std = pos_std_size * size
+    drift = vel_std * steps
+    return pos_std * pos_std + drift * drift
+
+
+def propagated_position(
+    ops: Ops[V],
+    mean: Sequence[V] | np.ndarray,
+    cov: Sequence[Sequence[V]] | np.ndarray,
+    steps: V | float,
+    floor: V | float,
+) -> tuple[V, V, V, V, V, V]:
+    """A component's position ``steps`` reference frames after the loss, by ``A = [[I, steps I]]``:
+    the mean ``A m`` and the 2x2 block of ``A C A^T`` written out, the floor added to its diagonal.
+    ``mean[i]`` and ``cov[i][j]`` are the entries of the fitted ``(x, y, vx, vy)`` Gaussian.
+    Returns ``(mu_x, mu_y, sxx, syy, sxy, det)``, the determinant floored at 1e-12."""
+    mx, my, mvx, mvy = mean
+    mu_x = mx + steps * mvx
+    mu_y = my + steps * mvy
+    # (A C A^T)_ij = C_ij + s (C_i,j+2 + C_i+2,j) + s^2 C_i+2,j+2 for i, j in {0, 1}.
+    s2 = steps * steps
+    sxx = cov[0][0] + steps * (cov[0][2] + cov[2][0]) + s2 * cov[2][2] + floor
+    syy = cov[1][1] + steps * (cov[1][3] + cov[3][1]) + s2 * cov[3][3] + floor
+    sxy = cov[0][1] + steps * (cov[0][3] + cov[2][1]) + s2 * cov[2][3]
+    return mu_x, mu_y, sxx, syy, sxy, ops.maximum(sxx * syy - sxy * sxy, 1e-12)
+
+
+def match_exponent(position: tuple[V, V, V, V, V, V], x: V, y: V) -> V:
+    """``-d^2 / 2`` of point ``(x, y)`` under a :func:`propagated_position` (``d``: Mahalanobis)."""
+    mu_x, mu_y, sxx, syy, sxy, det = position
+    dx = x - mu_x
+    dy = y - mu_y
+    return -0.5 * ((syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det)
+
+
 def p_match_many(
     models: list[PmrModel],
     centers: np.ndarray,
@@ -190,94 +232,41 @@ def p_match_many(
 ) -> np.ndarray:
     """:func:`p_match` of every model at once, ``(len(models), D)``.
 
-    The components of all models are stacked and scored in one numpy pass (a per-model loop of
-    ~20 numpy calls on 2x2 blocks cost ~80 us per lost track, the bulk of PMR's frame time).
-    Each component is propagated by ``A = [[I, steps I]]``: ``A m`` and ``A C A^T`` are written
-    out for the 2x2 position block.
+    The components of all models are scored together: on arrays (every component against every
+    centre in one numpy pass) or, for a few pairs (:func:`gldt_core.track.fastpath.on_floats`),
+    pair by pair on Python floats; the exponentials are one ``np.exp`` call either way. A model's
+    mixture sum adds its components in order (``w_0 l_0 + w_1 l_1``).
     """
     centers = np.asarray(centers, dtype=np.float64).reshape(-1, 2)
     if not models:
         return np.zeros((0, len(centers)))
     counts = [len(m.weights) for m in models]
-    if sum(counts) * len(centers) <= SMALL_MATCH_PAIRS:
-        return _p_match_small(models, centers, t, ref_fps, pos_std_size, vel_std)
-    mean_pv = np.concatenate([m.mean_pv for m in models]) if len(models) > 1 else models[0].mean_pv
-    cov_pv = np.concatenate([m.cov_pv for m in models]) if len(models) > 1 else models[0].cov_pv
     steps_m = [max(t - m.t_loss, 0.0) * ref_fps for m in models]
-    floor_m = [(pos_std_size * m.size) ** 2 + (vel_std * st) ** 2 for m, st in zip(models, steps_m)]
-    if len(models) == 1:  # scalars broadcast to the same values as repeated arrays
-        steps, floor = steps_m[0], floor_m[0]
-    else:
-        steps = np.repeat(steps_m, counts)
-        floor = np.repeat(floor_m, counts)
-    c = cov_pv
-    mu_x = mean_pv[:, 0] + steps * mean_pv[:, 2]
-    mu_y = mean_pv[:, 1] + steps * mean_pv[:, 3]
-    # (A C A^T)_ij = C_ij + s (C_i,j+2 + C_i+2,j) + s^2 C_i+2,j+2 for i, j in {0, 1}.
-    s2 = steps * steps
-    sxx = c[:, 0, 0] + steps * (c[:, 0, 2] + c[:, 2, 0]) + s2 * c[:, 2, 2] + floor
-    syy = c[:, 1, 1] + steps * (c[:, 1, 3] + c[:, 3, 1]) + s2 * c[:, 3, 3] + floor
-    sxy = c[:, 0, 1] + steps * (c[:, 0, 3] + c[:, 2, 1]) + s2 * c[:, 2, 3]
-    det = np.maximum(sxx * syy - sxy * sxy, 1e-12)
-    dx = centers[None, :, 0] - mu_x[:, None]  # (sum K, D)
-    dy = centers[None, :, 1] - mu_y[:, None]
-    d2 = (syy[:, None] * dx * dx - 2.0 * sxy[:, None] * dx * dy + sxx[:, None] * dy * dy) / det[:, None]
-    like = np.exp(-0.5 * d2)
-    if len(models) == 1:
-        return (models[0].weights @ like)[None, :]
+    floor_m = [floor_variance(m.size, st, pos_std_size, vel_std) for m, st in zip(models, steps_m)]
+    if on_floats(sum(counts) * len(centers)):
+        points = centers.tolist()
+        exponents = []
+        for m, steps, floor in zip(models, steps_m, floor_m):
+            for mean, cov in zip(m.mean_pv.tolist(), m.cov_pv.tolist()):
+                position = propagated_position(FLOATS, mean, cov, steps, floor)
+                exponents += [match_exponent(position, x, y) for x, y in points]
+        like = np.exp(np.array(exponents)).tolist()
+        out = []
+        row = 0
+        for m in models:
+            mixture = [0.0] * len(points)
+            for w in m.weights.tolist():
+                mixture = [acc + w * v for acc, v in zip(mixture, like[row * len(points) : (row + 1) * len(points)])]
+                row += 1
+            out.append(mixture)
+        return np.array(out).reshape(len(models), len(points))
+    mean = np.concatenate([m.mean_pv for m in models]).T  # (4, sum K)
+    cov = np.concatenate([m.cov_pv for m in models]).transpose(1, 2, 0)  # (4, 4, sum K)
+    position = propagated_position(ARRAYS, mean, cov, np.repeat(steps_m, counts), np.repeat(floor_m, counts))
+    columns = tuple(v[:, None] for v in position)
+    like = np.exp(match_exponent(columns, centers[None, :, 0], centers[None, :, 1]))
     weighted = np.concatenate([m.weights for m in models])[:, None] * like
     return np.add.reduceat(weighted, np.cumsum([0] + counts[:-1]), axis=0)
-
-
-#: Up to this many (component, detection) pairs, :func:`p_match_many` runs on Python floats.
-SMALL_MATCH_PAIRS = 32
-
-
-def _p_match_small(
-    models: list[PmrModel],
-    centers: np.ndarray,
-    t: float,
-    ref_fps: float,
-    pos_std_size: float,
-    vel_std: float,
-) -> np.ndarray:
-    """:func:`p_match_many` for a few components and detections, on Python floats: the stacked
-    path's operations in the same order (one batched np.exp, so the same exp), without its ~25
-    numpy calls on 1-4 element arrays. The mixture sum is the stacked path's
-    ``w_0 l_0 + w_1 l_1``; the one-model numpy shortcut ``weights @ like`` is a BLAS product that
-    may round its last bit differently (FMA); tests/test_track_small_pools.py compares them."""
-    pts = centers.tolist()
-    exponents: list[float] = []
-    weights: list[list[float]] = []
-    for m in models:
-        steps = max(t - m.t_loss, 0.0) * ref_fps
-        floor = (pos_std_size * m.size) ** 2 + (vel_std * steps) ** 2
-        s2 = steps * steps
-        weights.append(m.weights.tolist())
-        for (mx, my, mvx, mvy), c in zip(m.mean_pv.tolist(), m.cov_pv.tolist()):
-            mu_x = mx + steps * mvx
-            mu_y = my + steps * mvy
-            sxx = c[0][0] + steps * (c[0][2] + c[2][0]) + s2 * c[2][2] + floor
-            syy = c[1][1] + steps * (c[1][3] + c[3][1]) + s2 * c[3][3] + floor
-            sxy = c[0][1] + steps * (c[0][3] + c[2][1]) + s2 * c[2][3]
-            det = sxx * syy - sxy * sxy
-            if det < 1e-12:
-                det = 1e-12
-            for px, py in pts:
-                dx = px - mu_x
-                dy = py - mu_y
-                exponents.append(-0.5 * ((syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det))
-    like = np.exp(np.array(exponents)).tolist()
-    n_d = len(pts)
-    out = []
-    row = 0
-    for w in weights:
-        acc = [w[0] * v for v in like[row * n_d : (row + 1) * n_d]]
-        for k in range(1, len(w)):
-            acc = [a + w[k] * v for a, v in zip(acc, like[(row + k) * n_d : (row + k + 1) * n_d])]
-        out.append(acc)
-        row += len(w)
-    return np.array(out).reshape(len(models), n_d)
 
 
 @functools.lru_cache(maxsize=1024)

@@ -7,8 +7,10 @@ from collections import deque
 
 import numpy as np
 
-from gldt_core.track.boxes import cxcywh_to_xyxy, xyxy_to_cxcywh
+from gldt_core.track.boxes import centre_size, corners
+from gldt_core.track.fastpath import on_floats
 from gldt_core.track.kalman import ConstantVelocityKalman, predict_many, update_many
+from gldt_core.track.pmr import PmrModel
 
 
 class TrackState(enum.Enum):
@@ -45,7 +47,9 @@ class Track:
     ) -> None:
         self.track_id = int(track_id)
         self.state = state
-        self.kf = ConstantVelocityKalman(xyxy_to_cxcywh(np.asarray(box_xyxy, dtype=np.float64)), ref_fps)
+        x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
+        cx, cy, w, h = centre_size(x1, y1, x2, y2)
+        self.kf = ConstantVelocityKalman(np.array([cx, cy, w, h]), ref_fps)
         self.kf_t = float(t)
         self.score = float(score)
         self.hits = 1
@@ -57,19 +61,18 @@ class Track:
         #: Observed centres (cx, cy) and KF velocities at each update, newest last.
         self.history: deque[tuple[float, ...]] = deque(maxlen=history_len)
         #: Last observed centre ``(cx, cy)`` as Python floats (see ``last_obs_cxcy``).
-        self.last_obs_xy: tuple[float, float] = tuple(self.kf.mean[:2].tolist())
+        self.last_obs_xy: tuple[float, float] = (cx, cy)
         self._recent_v: deque[tuple[float, float]] = deque()
         self._v_sum = [0.0, 0.0]
         self._record(t, rel_xy)
         #: Cached PMR mixture, fitted lazily once the track is lost (see pmr.py).
-        self.pmr_model: object | None = None
+        self.pmr_model: PmrModel | None = None
 
     # --- public read-only view -------------------------------------------------------------
     @property
     def box_xyxy(self) -> np.ndarray:
         """Filtered box ``[x1, y1, x2, y2]`` at ``now_t`` (a prediction while lost)."""
-        cx, cy, w, h = self.kf.mean[:4].tolist()
-        return np.array([cx - 0.5 * w, cy - 0.5 * h, cx + 0.5 * w, cy + 0.5 * h])
+        return np.array(box_row(self))
 
     @property
     def velocity_px_s(self) -> np.ndarray:
@@ -105,25 +108,15 @@ class Track:
     def predicted_xyxy(self, t: float) -> np.ndarray:
         """Box predicted at ``t`` without changing the filter."""
         mean, _ = self.kf.predicted(t - self.kf_t)
-        return cxcywh_to_xyxy(mean[:4])
+        return np.array(corners(*mean[:4].tolist()))
 
-    def update(self, box_xyxy: np.ndarray, score: float, t: float, rel_xy: tuple[float, float]) -> None:
-        """Fuse a matched detection at ``t`` (the filter must already be at ``t``)."""
-        x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
-        self.kf.update(np.array([(x1 + x2) * 0.5, (y1 + y2) * 0.5, x2 - x1, y2 - y1]))
-        self._after_update(x1, y1, x2, y2, float(score), t, rel_xy)
-
-    def after_update(self, box_xyxy: np.ndarray, score: float, t: float, rel_xy: tuple[float, float]) -> None:
-        """Bookkeeping of an update whose filter step was already done (see update_tracks)."""
-        x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
-        self._after_update(x1, y1, x2, y2, float(score), t, rel_xy)
-
-    def _after_update(
+    def _record_update(
         self, x1: float, y1: float, x2: float, y2: float, score: float, t: float, rel_xy: tuple[float, float]
     ) -> None:
-        """``after_update`` on Python floats (callers that already unpacked the box skip an array
-        round trip per track)."""
-        self.last_obs_xy = ((x1 + x2) * 0.5, (y1 + y2) * 0.5)
+        """The bookkeeping of a matched detection ``x1..y2`` at ``t``, after the filter has fused it
+        (:func:`update_tracks` does both: the one way to update a track)."""
+        cx, cy, _, _ = centre_size(x1, y1, x2, y2)
+        self.last_obs_xy = (cx, cy)
         self.score = score
         self.hits += 1
         self.frames_since_update = 0
@@ -137,9 +130,9 @@ class Track:
 
     def mark_lost(self) -> None:
         """Lost: the box coasts with the filter's velocities, its size included. Freezing the
-        size while coasting (as ByteTrack does for the height) was tried on 2026-12-02 and not
-        kept: GD+ByteTrack MOTA on the ablation's real clips fell from 24.1 to 19.2 (IDF1 30.1 to
-        32.6), and `gldt bench tracking` moved by at most 7 IDSW."""
+        size while coasting, as ByteTrack does for the height (against size jitter collapsing a
+        coasted small box), was tried and not kept: it cost MOTA on the ablation's real clips
+        (docs/experiment-log.md, Tracking)."""
         if self.state is not TrackState.LOST:
             self.state = TrackState.LOST
             self.lost_since_t = self.last_update_t
@@ -171,15 +164,10 @@ class Track:
         return np.asarray(self.history, dtype=np.float64)
 
 
-#: Up to this many tracks :func:`boxes_xyxy` converts on Python floats.
-SMALL_BOX_COUNT = 8
-
-
 def box_row(tr: Track) -> tuple[float, float, float, float]:
-    """``tr.box_xyxy`` as Python floats (the same operations as the property)."""
+    """``tr.box_xyxy`` as Python floats."""
     cx, cy, w, h = tr.kf.mean[:4].tolist()
-    half_w, half_h = 0.5 * w, 0.5 * h
-    return (cx - half_w, cy - half_h, cx + half_w, cy + half_h)
+    return corners(cx, cy, w, h)
 
 
 def box_rows(tracks: list[Track]) -> list[tuple[float, float, float, float]]:
@@ -188,18 +176,13 @@ def box_rows(tracks: list[Track]) -> list[tuple[float, float, float, float]]:
 
 
 def boxes_xyxy(tracks: list[Track]) -> np.ndarray:
-    """``(len(tracks), 4)`` array of ``tr.box_xyxy``, converted in one vectorised step (the same
-    IEEE operations as the property, without a small array per track)."""
+    """``(len(tracks), 4)`` array of ``tr.box_xyxy``."""
     if not tracks:
         return np.zeros((0, 4))
-    if len(tracks) <= SMALL_BOX_COUNT:  # Python floats: no numpy temporaries for a few boxes
+    if on_floats(len(tracks)):
         return np.array(box_rows(tracks), dtype=np.float64)
     m = np.array([tr.kf.mean[:4] for tr in tracks], dtype=np.float64)
-    half_w = 0.5 * m[:, 2:4]
-    out = np.empty((len(tracks), 4))
-    out[:, :2] = m[:, :2] - half_w
-    out[:, 2:] = m[:, :2] + half_w
-    return out
+    return np.column_stack(corners(m[:, 0], m[:, 1], m[:, 2], m[:, 3]))
 
 
 def advance_tracks(tracks: list[Track], t: float) -> None:
@@ -215,13 +198,13 @@ def advance_tracks(tracks: list[Track], t: float) -> None:
 def update_tracks(
     tracks: list[Track], boxes_xyxy: np.ndarray, scores: np.ndarray, t: float, rels: list[tuple[float, float]]
 ) -> None:
-    """``update`` for several (track, detection) pairs with one batched Kalman step."""
+    """Fuse one matched detection ``[x1, y1, x2, y2]`` (with its score and relative position) into
+    each track at ``t``, the filters already predicted to ``t``: one batched Kalman step, then each
+    track's bookkeeping."""
     if not tracks:
         return
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4).tolist()
-    # [cx, cy, w, h] on Python floats: the operations of the vectorised conversion, and the boxes
-    # are needed as floats for the bookkeeping anyway.
-    measured = np.array([((x1 + x2) * 0.5, (y1 + y2) * 0.5, x2 - x1, y2 - y1) for x1, y1, x2, y2 in boxes])
+    measured = np.array([centre_size(x1, y1, x2, y2) for x1, y1, x2, y2 in boxes])
     update_many([tr.kf for tr in tracks], measured)
     for tr, (x1, y1, x2, y2), score, rel in zip(tracks, boxes, np.asarray(scores, dtype=np.float64).tolist(), rels):
-        tr._after_update(x1, y1, x2, y2, score, t, rel)
+        tr._record_update(x1, y1, x2, y2, score, t, rel)

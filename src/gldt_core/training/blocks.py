@@ -169,8 +169,8 @@ class DFL(nn.Module):
         logits = x.view(b, 4, self.reg_max, a)
         # Softmax over the bins written out along dim 2 instead of transpose + softmax + 1x1 conv:
         # an ONNX Softmax on a non-last axis makes onnxruntime transpose the whole (B, 4, R, A)
-        # tensor, which took 15 of 78 ms of a 640x384 frame with a stride-4 head. Same values;
-        # ``conv`` keeps the bin weights (and old checkpoints loadable).
+        # tensor, a large share of the frame's time with a stride-4 head. Same values; ``conv``
+        # keeps the bin weights (and old checkpoints loadable).
         bins = self.conv.weight.view(1, 1, self.reg_max, 1)
         e = (logits - logits.amax(2, keepdim=True)).exp()
         return (e * bins).sum(2) / e.sum(2)

@@ -1,7 +1,7 @@
 """Training data for the detectors: real Halmstad frame pairs and synthetic scenes, with augmentation.
 
-Frames are decoded once (cv2.VideoCapture) and kept JPEG-encoded in a pickle cache, so an epoch
-costs a few ms per sample instead of a video seek. A *sample* is always a pair (previous, current)
+Frames are decoded once (cv2.VideoCapture) and kept JPEG-encoded in a pickle cache, so a sample
+costs a JPEG decode instead of a video seek. A *sample* is always a pair (previous, current)
 with the current frame's boxes, so the same store feeds AM-YOLO (both frames) and the local model
 (current frame only).
 
@@ -69,8 +69,7 @@ class FramePair:
     boxes: np.ndarray  # (M, 5) class, x1, y1, x2, y2 in frame pixels
 
     def images(self) -> tuple[np.ndarray, np.ndarray]:
-        decode = lambda data: cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)  # noqa: E731
-        return decode(self.previous), decode(self.current)
+        return _decode(self.previous), _decode(self.current)
 
 
 def _encode(image: np.ndarray) -> bytes:
@@ -78,6 +77,14 @@ def _encode(image: np.ndarray) -> bytes:
     if not ok:
         raise ValueError("could not JPEG-encode a frame")
     return buf.tobytes()
+
+
+def _decode(data: bytes) -> np.ndarray:
+    """The BGR frame :func:`_encode` stored."""
+    image = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    if image is None:
+        raise ValueError("could not decode a JPEG frame")
+    return image
 
 
 def gt_boxes_by_frame(gt_path: Path) -> dict[int, np.ndarray]:
@@ -285,6 +292,7 @@ class GlobalPairDataset(Dataset):
         self.seed, self.scale_range, self.target_bias = seed, scale_range, target_bias
         self.copy_paste = copy_paste
         self.epoch = 0
+        self.sample_weights: list[float] | None = None  # per-pair draw weights; None draws uniformly
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -341,6 +349,7 @@ class LocalCropDataset(Dataset):
         self.seed, self.negative_fraction = seed, negative_fraction
         self.copy_paste = copy_paste
         self.epoch = 0
+        self.sample_weights: list[float] | None = None  # per-pair draw weights; None draws uniformly
 
     def __len__(self) -> int:
         return len(self.pairs)

@@ -112,6 +112,10 @@ class TaskAlignedAssigner(nn.Module):
 class DetectionLoss(nn.Module):
     """Sum of the classification (BCE), box (CIoU) and DFL terms, each scaled by its gain."""
 
+    # Buffers (register_buffer), declared for the type checker.
+    strides: torch.Tensor
+    bins: torch.Tensor
+
     def __init__(
         self,
         num_classes: int,

@@ -46,12 +46,13 @@ class ModelSpec:
     stff_alpha: float = 0.1
 
     def __post_init__(self) -> None:
-        self.channels = tuple(int(c) for c in self.channels)  # type: ignore[assignment]
+        widths = tuple(int(c) for c in self.channels)
         self.head_levels = tuple(sorted(int(level) for level in self.head_levels))
         self.stff_levels = tuple(int(level) for level in self.stff_levels)
         self.stff_windows = tuple(int(w) for w in self.stff_windows)
-        if len(self.channels) != 5:
-            raise ValueError(f"channels needs 5 widths (P1..P5), got {self.channels}")
+        if len(widths) != 5:
+            raise ValueError(f"channels needs 5 widths (P1..P5), got {widths}")
+        self.channels = (widths[0], widths[1], widths[2], widths[3], widths[4])
         if not self.head_levels or not set(self.head_levels) <= set(LEVEL_STRIDES):
             raise ValueError(f"head_levels must be a non-empty subset of 2..5, got {self.head_levels}")
         if len(self.stff_windows) != len(self.stff_levels):
@@ -106,6 +107,8 @@ class Backbone(nn.Module):
 class DetectHead(nn.Module):
     """Anchor-free decoupled head: a DFL box branch and a light depth-wise class branch per level."""
 
+    strides: torch.Tensor  # a buffer (register_buffer), declared for the type checker
+
     def __init__(self, channels: list[int], strides: tuple[int, ...], num_classes: int, reg_max: int):
         super().__init__()
         self.nc = num_classes
@@ -125,8 +128,8 @@ class DetectHead(nn.Module):
     def _init_bias(self, strides: tuple[int, ...]) -> None:
         """Start with a low object prior (few objects per 640 image) so early training is stable."""
         for box, cls, stride in zip(self.box, self.cls, strides):
-            box[-1].bias.data[:] = 1.0
-            cls[-1].bias.data[:] = math.log(5 / self.nc / (640 / stride) ** 2)
+            _prediction_bias(box).data[:] = 1.0
+            _prediction_bias(cls).data[:] = math.log(5 / self.nc / (640 / stride) ** 2)
 
     def forward(self, feats: list[torch.Tensor]) -> list[torch.Tensor] | torch.Tensor:
         maps = [torch.cat((box(x), cls(x)), 1) for x, box, cls in zip(feats, self.box, self.cls)]
@@ -161,6 +164,14 @@ def _separable_branch(ch: int, hidden: int, out: int) -> nn.Sequential:
         Conv(hidden, hidden, 1),
         nn.Conv2d(hidden, out, 1),
     )
+
+
+def _prediction_bias(branch: nn.Module) -> torch.Tensor:
+    """The bias of a branch's final prediction conv (the last layer of :func:`_separable_branch`)."""
+    assert isinstance(branch, nn.Sequential)
+    conv = branch[-1]
+    assert isinstance(conv, nn.Conv2d) and conv.bias is not None
+    return conv.bias
 
 
 def make_anchors(
@@ -214,7 +225,7 @@ class Detector(nn.Module):
             raise ValueError(f"input {w}x{h} must have sides divisible by {multiple}")
         last_fused = max(self.spec.stff_levels, default=0)
         two = previous is not None and last_fused > 0
-        x = torch.cat((current, previous), 0) if two else current
+        x = torch.cat((current, previous), 0) if two and previous is not None else current
         b = current.shape[0]
         x = self.backbone.stem(x)
         levels: dict[int, torch.Tensor] = {}
@@ -254,6 +265,14 @@ class Detector(nn.Module):
         if top >= 5:
             outs[5] = self.bu5(torch.cat((self.down4(outs[4]), p[5]), 1))
         return self.head([outs[level] for level in self.spec.head_levels])
+
+    def stff_alphas(self) -> list[float]:
+        """The learned residual weight alpha (eq. 5) of each STFF, in ``spec.stff_levels`` order."""
+        alphas = []
+        for fusion in self.stff.values():
+            assert isinstance(fusion, STFF)
+            alphas.append(float(fusion.alpha))
+        return alphas
 
 
 def count_parameters(model: nn.Module) -> int:

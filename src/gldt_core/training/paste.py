@@ -2,12 +2,12 @@
 
 Why: each Halmstad clip holds one kind of object against one kind of background (drones over tree
 lines, birds against cloud, ...). A small detector trained on whole clips learns the *scene* as a
-class cue, so on a held-out clip it calls a drone a bird (about one held-out drone in five for
-the shipped AM-YOLO asked about every class: a box of the right place and size, the wrong class).
-Pasting drones into bird and airplane clips, and birds and airplanes into drone clips, is meant to
-take that shortcut away, and adds object-background combinations the 59 training drone clips
-never show. Measured (README, Results): it does cut false drones on bird clips, and costs drone
-recall at this model size, so the shipped configs leave it off.
+class cue, so on a held-out clip it calls a drone a bird (asked about every class, the shipped
+AM-YOLO boxes some held-out drones in the right place and size, with the wrong class). Pasting
+drones into bird and airplane clips, and birds and airplanes into drone clips, is meant to take
+that shortcut away, and adds object-background combinations the 59 training drone clips never
+show. The experiments (``docs/experiment-log.md``) found that it cuts false drones on bird clips
+but costs drone recall at this model size, so the shipped configs leave it off.
 
 Objects are matted, not pasted as rectangles: a rectangle of foreign sky around a pasted drone
 would be a cue that never occurs at run time. The matte is the pixel's difference from the

@@ -29,9 +29,8 @@ def window_partition(x: torch.Tensor, window: int) -> torch.Tensor:
     Tokens run window by window (row-major over windows), row-major inside a window. Written as
     two 4-D permutes (to NHWC, then swap the window-row and in-window-row axes over contiguous
     ``S*C`` blocks) rather than one 6-D permute: onnxruntime's CPU Transpose moves a 6-D permute
-    element by element, and at the P2 level that one op cost more than the attention itself
-    (about 1.7 ms each, 4 per STFF; the exported AM-YOLO runs about 12 % faster this way, with
-    identical outputs).
+    element by element, and at the P2 level that one op (4 per STFF) cost more than the attention
+    itself. The outputs are identical; the timings are in ``docs/experiment-log.md``.
     """
     b, c, h, w = x.shape
     x = x.permute(0, 2, 3, 1).reshape(b * (h // window), window, w // window, window * c)

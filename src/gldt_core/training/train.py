@@ -166,7 +166,7 @@ def load_config(path: Path | str) -> dict[str, Any]:
 class ModelEMA:
     """Exponential moving average of the weights (decay ramps up over the first steps)."""
 
-    def __init__(self, model: torch.nn.Module, decay: float):
+    def __init__(self, model: Detector, decay: float):
         self.ema = copy.deepcopy(model).eval()
         for p in self.ema.parameters():
             p.requires_grad_(False)
@@ -198,7 +198,9 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[str, Any]]:
+def build_datasets(
+    task: str, config: dict[str, Any]
+) -> tuple[GlobalPairDataset | LocalCropDataset, Subset[Any], dict[str, Any]]:
     """Training and validation datasets plus a description of what went in (for the model card)."""
     data = config["data"]
     seed = config["seed"]
@@ -242,6 +244,8 @@ def build_datasets(task: str, config: dict[str, Any]) -> tuple[Any, Any, dict[st
         raise ValueError("no validation data: real_validation is false and synthetic_val_scenes is 0")
     w, h = data["input_size"]
     copy_paste = _copy_paste(data, train_pairs, seed)
+    train_ds: GlobalPairDataset | LocalCropDataset
+    val_ds: GlobalPairDataset | LocalCropDataset
     if task == "global":
         train_ds = GlobalPairDataset(train_pairs, (w, h), train=True, seed=seed, copy_paste=copy_paste)
         val_ds = GlobalPairDataset(val_pairs, tuple(data["val_size"]), train=False, seed=seed)
@@ -307,7 +311,8 @@ def sample_weights(num_real: int, num_synthetic: int, synthetic_share: float | N
     of the draws; ``None`` when every pair is to be equally likely.
 
     Why: the real clips outnumber the synthetic scenes' pairs about 4 to 1, and a detector trained
-    on that mix learns the real drones' look and misses the synthetic ones (issue #6 README).
+    on that mix learns the real drones' look and misses the synthetic ones (issue #6;
+    ``docs/experiment-log.md``).
     """
     if synthetic_share is None:
         return None
@@ -430,7 +435,8 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
     model = Detector(spec).to(device)
     ema = ModelEMA(model, tcfg["ema_decay"])
     criterion = DetectionLoss(spec.num_classes, spec.reg_max, spec.strides).to(device)
-    decay, no_decay = [], []
+    decay: list[torch.nn.Parameter] = []
+    no_decay: list[torch.nn.Parameter] = []
     for name, p in model.named_parameters():
         (no_decay if p.ndim <= 1 or name.endswith("alpha") else decay).append(p)
     optimizer = torch.optim.AdamW(
@@ -447,11 +453,12 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         by_time = (time.time() - started) / max_wall_s if max_wall_s > 0 else 0.0
         return min(1.0, max(steps_done / total_steps, by_time))
 
-    # LambdaLR passes the number of scheduler steps taken so far.
-    schedule = lambda count: (
-        min(1.0, (count + 1) / max(tcfg["warmup_steps"], 1))
-        * (0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress_fraction(count))))
-    )  # noqa: E731
+    def schedule(count: int) -> float:
+        """Learning-rate factor after ``count`` scheduler steps (what LambdaLR passes)."""
+        return min(1.0, (count + 1) / max(tcfg["warmup_steps"], 1)) * (
+            0.05 + 0.95 * 0.5 * (1 + math.cos(math.pi * progress_fraction(count)))
+        )
+
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, schedule)
     val_loader = DataLoader(val_ds, batch_size=4, shuffle=False, collate_fn=collate)
     generator = torch.Generator().manual_seed(config["seed"])
@@ -469,7 +476,8 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         train_ds.epoch = epoch  # read by the loader's workers, which start afresh each epoch
         model.train()
         draws = tcfg["steps_per_epoch"] * tcfg["batch_size"]
-        weights = getattr(train_ds, "sample_weights", None)
+        weights = train_ds.sample_weights
+        sampler: torch.utils.data.Sampler[int]
         if weights is None:
             sampler = torch.utils.data.RandomSampler(train_ds, replacement=True, num_samples=draws, generator=generator)
         else:
@@ -507,7 +515,8 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
                 break  # the wall-clock budget ends the schedule mid-epoch
             if not progress and step % 10 == 0:
                 print(
-                    f"[{task}] epoch {epoch} step {step}/{total_steps} loss {float(loss.detach()):.3f} ({time.time() - started:.0f} s)",
+                    f"[{task}] epoch {epoch} step {step}/{total_steps} loss {float(loss.detach()):.3f} "
+                    f"({time.time() - started:.0f} s)",
                     flush=True,
                 )
         n = max(batches, 1)
@@ -520,7 +529,7 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         }
         row.update({f"val_{k}": v for k, v in metrics.items() if k != "num_gt"})
         if task == "global" and spec.stff_levels:
-            row["alpha_mean"] = float(np.mean([float(m.alpha) for m in ema.ema.stff.values()]))
+            row["alpha_mean"] = float(np.mean(ema.ema.stff_alphas()))
         rows.append(row)
         with (out / "log.csv").open("w", newline="") as fh:
             writer = csv.DictWriter(fh, fieldnames=list(rows[-1].keys()))
@@ -534,7 +543,8 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
             best = score
             save_checkpoint(out / "best.pt", ema.ema, spec, task, config, extra)
         print(
-            f"[{task}] epoch {epoch}: loss {row['loss']:.3f} val AP50 {metrics['ap50']:.3f} AP50:95 {metrics['ap50_95']:.3f} ({row['elapsed_s']} s)",
+            f"[{task}] epoch {epoch}: loss {row['loss']:.3f} val AP50 {metrics['ap50']:.3f} "
+            f"AP50:95 {metrics['ap50_95']:.3f} ({row['elapsed_s']} s)",
             flush=True,
         )
     return out / "best.pt"

@@ -1,4 +1,4 @@
-"""Draw what the pipeline did on a frame: track boxes with ids, the mode, and the LD windows."""
+"""Draw what the GL-DT system did on a frame: track boxes with ids, the mode, and the LD windows."""
 
 from __future__ import annotations
 

@@ -8,10 +8,14 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from gldt_core.viz.overlay import draw_overlay
+
+if TYPE_CHECKING:
+    import cv2
 
 
 class OverlayVideoWriter:
@@ -23,17 +27,17 @@ class OverlayVideoWriter:
             raise ValueError(f"--render: output must end in .mp4, .avi or .mkv, got {self.path.name}")
         self.fps = float(fps) if fps and fps > 0 else 30.0
         self._temporary = self.path.with_name(self.path.stem + ".part" + self.path.suffix)
-        self._writer = None
+        self._writer: cv2.VideoWriter | None = None
         self._size: tuple[int, int] | None = None
 
     def write(self, frame: np.ndarray, tracks: np.ndarray, mode: str, rois: np.ndarray, index: int) -> None:
         import cv2
 
         image = draw_overlay(frame, tracks, mode, rois, frame_index=index)
-        if self._writer is None:
+        if self._writer is None or self._size is None:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._size = (image.shape[1], image.shape[0])
-            fourcc = cv2.VideoWriter_fourcc(*("mp4v" if self.path.suffix.lower() == ".mp4" else "MJPG"))
+            fourcc = cv2.VideoWriter.fourcc(*("mp4v" if self.path.suffix.lower() == ".mp4" else "MJPG"))
             self._writer = cv2.VideoWriter(str(self._temporary), fourcc, self.fps, self._size)
             if not self._writer.isOpened():
                 raise ValueError(f"--render: cannot open a video writer for {self.path}")

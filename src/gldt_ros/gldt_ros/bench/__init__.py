@@ -1,0 +1,1 @@
+"""Benchmarks of the running graph (``python -m gldt_ros.bench.<name>``); not unit tests."""

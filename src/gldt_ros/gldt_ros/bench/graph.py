@@ -1,7 +1,7 @@
 """ROS graph benchmark: throughput, camera-to-tracks latency and transport overhead.
 
-Usage: ``python -m gldt_ros.bench.graph [--bag BAG] [--rate 1.0] [--in-process]`` (with the workspace on the
-paths, e.g. ``scripts/with_ros_env.sh python -m gldt_ros.bench.graph``).
+Usage: ``python -m gldt_ros.bench.graph [--bag BAG] [--rate 1.0] [--in-process]`` (with the workspace
+on the paths, e.g. ``scripts/with_ros_env.sh python -m gldt_ros.bench.graph``).
 
 Runs on the same bag, in one invocation so the machine's load is shared alike:
 1. offline: ``GLDTSystem`` in this process reading the bag as ``gldt run --bag`` does - the
@@ -9,8 +9,8 @@ Runs on the same bag, in one invocation so the machine's load is shared alike:
    graph decodes it too (in frame_pair_buffer); the time without decoding is printed beside it;
 2. lockstep replay through the five processes - time per frame, whose excess over (1) is what
    the ROS transport and process hops cost. (1) and (2) alternate ``--repeats`` times and the
-   overhead is the median of each adjacent pair's ratio: this VM's speed drifts by 1.5-2x within
-   minutes, and a single pair measured the same code at +15 % and +64 % half an hour apart;
+   overhead is the median of each adjacent pair's ratio: a shared machine's speed can drift
+   several-fold within minutes, so one pair alone can be far off in either direction;
 3. free-running replay at the bag's rate x ``--rate`` - throughput, p50/p99 latency from
    publishing a camera frame to receiving its ``/gldt/tracks``, and frames left unanswered;
 4. start-up (issue #8, goal <= 5 s): from launching the node processes to every node ready and
@@ -41,14 +41,14 @@ def offline_seconds_per_frame(bag: Path) -> tuple[float, float, int, float]:
     from gldt_core.system.gldt_system import GLDTSystem
     from gldt_core.system.runner import run_frames
 
-    pipeline = GLDTSystem()
+    system = GLDTSystem()
     stamps: list[float] = []
     start = time.perf_counter()
-    result = run_frames(pipeline, open_source(str(bag)), on_frame=lambda frame, _tracks: stamps.append(frame.stamp))
+    result = run_frames(system, open_source(str(bag)), on_frame=lambda frame, _tracks: stamps.append(frame.stamp))
     frames = max(result.frames, 1)
     return (
         (time.perf_counter() - start) / frames,
-        pipeline.timer.seconds.get("decode", 0.0) / frames,
+        system.timer.seconds.get("decode", 0.0) / frames,
         result.frames,
         stamp_rate(stamps),
     )
@@ -89,6 +89,14 @@ def graph_run(bag: Path, extra: list[str]) -> str:
     return summary[-1]
 
 
+def replay_seconds(summary: str) -> float:
+    """The wall time of a replay from ``pipeline``'s summary line ("... replayed N frames in T s ...")."""
+    match = re.search(r"in ([0-9.]+) s", summary)
+    if match is None:
+        raise SystemExit(f"bench_graph: no replay time in pipeline's summary {summary!r}")
+    return float(match.group(1))
+
+
 def startup_run(bag: Path) -> dict:
     """Start-up times of a fresh graph (``soak_graph --startup-only``): ready_s, first_track_s, per node."""
     with tempfile.TemporaryDirectory() as folder:
@@ -119,7 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--in-process",
         action="store_true",
-        help="run the graph's nodes in one process (pipeline --in-process), to tell the cost of the process hops from rclpy's own",
+        help="run the graph's nodes in one process (pipeline --in-process), "
+        "to tell the cost of the process hops from rclpy's own",
     )
     parser.add_argument(
         "--repeats",
@@ -140,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
         lockstep = graph_run(args.bag, ["--lockstep", *mode])
         offline_runs.append(offline_s)
         decode_runs.append(decode_s)
-        lockstep_runs.append(float(re.search(r"in ([0-9.]+) s", lockstep).group(1)) / frames)
+        lockstep_runs.append(replay_seconds(lockstep) / frames)
     overhead, overheads = paired_overhead(offline_runs, lockstep_runs)
     overhead_no_decode, _ = paired_overhead([o - d for o, d in zip(offline_runs, decode_runs)], lockstep_runs)
     offline_s, decode_s, lockstep_s = (statistics.median(runs) for runs in (offline_runs, decode_runs, lockstep_runs))
@@ -152,12 +161,13 @@ def main(argv: list[str] | None = None) -> int:
     core_rate = math.floor(core_rate * 1000) / 1000
     core_rate_run = graph_run(args.bag, ["--rate", f"{core_rate:.3f}", *mode]) if core_rate < args.rate else None
     startup = startup_run(args.bag)
+    placement = "in one process" if args.in_process else "one process each"
     print(
-        f"bench_graph: {args.bag.name}, {frames} frames, nodes {'in one process' if args.in_process else 'one process each'}, "
+        f"bench_graph: {args.bag.name}, {frames} frames, nodes {placement}, "
         f"{args.repeats} offline/lockstep pair(s) (medians)"
     )
     print(
-        f"  offline core pipeline : {1000 * offline_s:7.1f} ms/frame ({1 / offline_s:5.1f} fps), "
+        f"  offline GL-DT system  : {1000 * offline_s:7.1f} ms/frame ({1 / offline_s:5.1f} fps), "
         f"of which reading and decoding the bag {1000 * decode_s:.1f} ms"
     )
     print(f"  graph, lockstep       : {1000 * lockstep_s:7.1f} ms/frame ({1 / lockstep_s:5.1f} fps)")
@@ -170,13 +180,13 @@ def main(argv: list[str] | None = None) -> int:
     if core_rate_run is not None:
         print(
             f"  free-running x{core_rate:.3f} : {core_rate_run.split('pipeline: ', 1)[1]} "
-            f"(the rate the core sustains, {core_rate * bag_fps:.1f} of the bag's {bag_fps:.1f} fps; goal p99 <= 100 ms, none unanswered)"
+            f"(the rate the core sustains, {core_rate * bag_fps:.1f} of the bag's {bag_fps:.1f} fps; "
+            "goal p99 <= 100 ms, none unanswered)"
         )
     first = startup.get("first_track_s")
     first_text = "no track within 60 s" if first is None else f"first non-empty track {first:.2f} s"
-    print(
-        f"  start-up              : all nodes ready {startup.get('ready_s', float('nan')):.2f} s, {first_text} after launch (goal <= 5 s)"
-    )
+    ready = startup.get("ready_s", float("nan"))
+    print(f"  start-up              : all nodes ready {ready:.2f} s, {first_text} after launch (goal <= 5 s)")
     return 0
 
 

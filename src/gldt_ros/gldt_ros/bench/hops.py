@@ -17,7 +17,7 @@ from camera to tracks. The chain is:
 so "decision -> detections" holds the buffer's letterbox or crops, the pair or crops hop and the
 detector; minus the detector's own time it is what that hop costs. The times are arrivals at the
 probe, so two messages sent almost together (detections, then tracks) can arrive in either order
-and a stage can come out negative (by up to some 15 ms on GD frames, seen).
+and a stage can come out slightly negative.
 """
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def slowest_frames(
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="bench_hops", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m gldt_ros.bench.hops", description=__doc__.split("\n\n")[0])
     parser.add_argument("--bag", type=Path, default=Path("bags/halmstad_v_drone_001"), help="bag to replay")
     parser.add_argument(
         "--worst", type=int, default=5, help="also list this many slowest frames stage by stage (0: none)"

@@ -46,7 +46,11 @@ def run_echo() -> int:
     rclpy.init()
     node = rclpy.create_node("bench_pair_hop_echo")
     reply = node.create_publisher(FrameTick, ECHO_TOPIC, _qos())
-    node.create_subscription(FramePair, PAIR_TOPIC, lambda pair: reply.publish(FrameTick(header=pair.header)), _qos())
+
+    def answer(pair: FramePair) -> None:
+        reply.publish(FrameTick(header=pair.header))
+
+    node.create_subscription(FramePair, PAIR_TOPIC, answer, _qos())
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:

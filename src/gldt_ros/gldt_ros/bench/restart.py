@@ -33,7 +33,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gldt_ros.launcher.pipeline import NODES
+from gldt_ros.interface.graph import NODES
 from gldt_ros.runtime.shm_cleanup import segments_held_by
 
 #: The issue's goal: tracks again within this many seconds of the restart.
@@ -75,9 +75,8 @@ def run_with_kill(
 ) -> KilledRun:
     """Replay ``bag`` through ``command`` (the ``pipeline`` executable) in lockstep, recording to
     ``record``, and SIGKILL node ``victim`` ``kill_after_s`` after every node is up. The default
-    falls mid-replay of the 150-frame sample bag whichever executor runs: a lockstep replay of
-    it takes 6-8 s here on rclpy's own executors and 4-5 s on the events executor, which had
-    finished it before the former 4 s."""
+    falls mid-replay of the 150-frame sample bag whichever executor runs, the faster events
+    executor included."""
     run = KilledRun(victim=victim, launched=time.time())
     process = subprocess.Popen(
         [*command, "--bag", str(bag), "--lockstep", "--frame-timeout", str(frame_timeout_s), "--record", str(record)],
@@ -142,9 +141,11 @@ def restart_timings(run: KilledRun, record: Path) -> dict[str, float]:
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="bench_restart", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m gldt_ros.bench.restart", description=__doc__.split("\n\n")[0])
     parser.add_argument("--bag", type=Path, default=Path("bags/halmstad_v_drone_001"), help="bag to replay")
-    parser.add_argument("--nodes", nargs="+", choices=NODES, default=list(NODES), help="nodes to kill, one run each")
+    parser.add_argument(
+        "--nodes", nargs="+", choices=list(NODES), default=list(NODES), help="nodes to kill, one run each"
+    )
     parser.add_argument("--repeats", type=int, default=1, help="runs per node (the median is reported)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     args = parser.parse_args(argv)
@@ -178,7 +179,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     print(f"restart of one node, lockstep replay of {args.bag} (median of {args.repeats}, and the worst run); seconds")
     print(
-        f"{'node':<18} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'worst':>6} {'goal':>5} {'cold start':>11} {'ratio':>6}"
+        f"{'node':<18} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'worst':>6} {'goal':>5} "
+        f"{'cold start':>11} {'ratio':>6}"
     )
     for victim, r in results.items():
         verdict = "OK" if r["worst_restart_to_tracks"] <= GOAL_S else "MISS"  # every restart, not the typical one

@@ -5,10 +5,11 @@ Usage (workspace on the paths)::
     scripts/with_ros_env.sh python -m gldt_ros.bench.soak --minutes 10 [--bag BAG] [--rate 30] [--json OUT]
     scripts/with_ros_env.sh python -m gldt_ros.bench.soak --startup-only [--import-times]
 
-It starts the five node processes exactly as ``pipeline`` does (:class:`NodeProcesses`), then
-loops the bag's frames at ``--rate`` Hz for ``--minutes``. Every frame is restamped
-``first_stamp + i / rate`` so that time only ever goes forward for the tracker: a replayed bag
-with its original stamps would make the tracker reset at every loop and hide a table that grows.
+It starts the graph's node processes exactly as ``pipeline`` does
+(:class:`gldt_ros.launcher.pipeline.NodeProcesses`), then loops the bag's frames at ``--rate`` Hz
+for ``--minutes``. Every frame is restamped ``first_stamp + i / rate`` so that time only ever goes
+forward for the tracker: a replayed bag with its original stamps would make the tracker reset at
+every loop and hide a table that grows.
 
 It reports:
 
@@ -33,13 +34,12 @@ import argparse
 import json
 import re
 import statistics
-import struct
 import subprocess
 import sys
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -91,7 +91,7 @@ def rss_summary(samples: Sequence[Sample], warmup_s: float) -> dict[str, dict[st
     summary: dict[str, dict[str, Any]] = {}
     for name in first.rss:
         start, end = first.rss.get(name), last.rss.get(name)
-        peak_values = [s.rss[name] for s in samples if s.rss.get(name) is not None]
+        peak_values = [value for s in samples if (value := s.rss.get(name)) is not None]
         growth = 100.0 * (end - start) / start if start and end is not None else None
         summary[name] = {
             "start_mib": start / MIB if start is not None else None,
@@ -120,8 +120,8 @@ def rss_summary(samples: Sequence[Sample], warmup_s: float) -> dict[str, dict[st
 
 def _total(sample: Sample) -> int:
     """Sum of the nodes' RSS in one sample (0 if a node was missing: it cannot be the peak)."""
-    values = list(sample.rss.values())
-    return sum(values) if all(v is not None for v in values) else 0
+    values = [value for value in sample.rss.values() if value is not None]
+    return sum(values) if len(values) == len(sample.rss) else 0
 
 
 def track_table_summary(samples: Sequence[Sample], warmup_s: float) -> dict[str, Any]:
@@ -210,8 +210,8 @@ def format_report(report: dict[str, Any]) -> str:
         for name, v in rss.items():
             flag = "  restarted" if v["restarted"] else ""
             lines.append(
-                f"  {name:<18} {_fmt(v['start_mib'], '8.1f')} {_fmt(v['end_mib'], '8.1f')} {_fmt(v['peak_mib'], '8.1f')} "
-                f"{_fmt(v['growth_pct'], '+7.1f')}%{flag}"
+                f"  {name:<18} {_fmt(v['start_mib'], '8.1f')} {_fmt(v['end_mib'], '8.1f')} "
+                f"{_fmt(v['peak_mib'], '8.1f')} {_fmt(v['growth_pct'], '+7.1f')}%{flag}"
             )
         first = next(iter(rss.values()))
         lines.append(
@@ -230,13 +230,15 @@ def format_report(report: dict[str, Any]) -> str:
     if replay:
         lines.append(
             f"replay: {replay.get('frames_published', 0)} frames in {replay.get('elapsed_s', 0.0):.1f} s "
-            f"({replay.get('fps', 0.0):.1f} fps, asked {replay.get('rate_hz', 0.0):g} Hz, {replay.get('late_frames', 0)} published late), "
+            f"({replay.get('fps', 0.0):.1f} fps, asked {replay.get('rate_hz', 0.0):g} Hz, "
+            f"{replay.get('late_frames', 0)} published late), "
             f"{replay.get('tracks_received', 0)} track messages, {replay.get('track_ids', 0)} distinct track ids, "
             f"restarts {replay.get('restarts', {})}"
         )
         if replay.get("latency_p50_ms") is not None:
             lines.append(
-                f"  camera-to-tracks latency p50 {replay['latency_p50_ms']:.0f} ms, p99 {replay['latency_p99_ms']:.0f} ms"
+                f"  camera-to-tracks latency p50 {replay['latency_p50_ms']:.0f} ms, "
+                f"p99 {replay['latency_p99_ms']:.0f} ms"
             )
         pct = report.get("frames_dropped_pct")
         lines.append(
@@ -256,28 +258,13 @@ def format_report(report: dict[str, Any]) -> str:
 # --------------------------------------------------------------------------------------------
 
 
-def restamp(cdr: bytes, stamp_ns: int) -> bytes:
-    """Copy of a CDR message whose first field is a ``std_msgs/Header`` with ``header.stamp`` replaced.
-
-    The stamp sits right after the 4-byte encapsulation header (``int32 sec, uint32 nanosec``), so
-    the bytes are patched in place instead of deserialising images.
-    """
-    if len(cdr) < 12:
-        raise ValueError(f"CDR message of {len(cdr)} bytes is too short to hold a header")
-    little_endian = cdr[1] in (0x01, 0x03)
-    seconds, nanoseconds = divmod(int(stamp_ns), 1_000_000_000)
-    patched = bytearray(cdr)
-    struct.pack_into("<iI" if little_endian else ">iI", patched, 4, seconds, nanoseconds)
-    return bytes(patched)
-
-
 def group_frames(messages: Sequence[Any], image_types: frozenset[str]) -> list[list[Any]]:
     """Group bag messages (``topic``, ``msgtype``, ``data``) into frames by header stamp.
 
     Within a frame the image goes last, so camera_info and ground truth are there when the graph
     processes it. Frames without an image are dropped (they would not make the graph run).
     """
-    from gldt_ros.launcher.bag_io import header_stamp_ns
+    from gldt_core.io.cdr import header_stamp_ns
 
     frames: OrderedDict[int, list[Any]] = OrderedDict()
     for message in messages:
@@ -317,13 +304,14 @@ def parse_importtime(stderr: str, top_n: int = 6) -> tuple[float, list[tuple[str
     return sum(per_package.values()), top
 
 
-def measure_import_times(nodes: Sequence[str]) -> dict[str, dict[str, Any]]:
-    """``python -X importtime -c 'import gldt_ros.nodes.NAME'`` for each node, one after another."""
+def measure_import_times(node_modules: Mapping[str, str]) -> dict[str, dict[str, Any]]:
+    """``python -X importtime -c 'import MODULE'`` for each node's module, one after another
+    (``node_modules`` maps node names to modules, as :data:`gldt_ros.interface.graph.NODES` does)."""
     results: dict[str, dict[str, Any]] = {}
-    for name in nodes:
+    for name, module in node_modules.items():
         start = time.perf_counter()
         completed = subprocess.run(
-            [sys.executable, "-X", "importtime", "-c", f"import gldt_ros.nodes.{name}"],
+            [sys.executable, "-X", "importtime", "-c", f"import {module}"],
             capture_output=True,
             text=True,
             timeout=300,
@@ -416,13 +404,13 @@ def wait_ready_per_node(
     node; the last subscription its constructor creates (:data:`LAST_SUBSCRIPTION`) shows once
     its models are loaded.
     """
-    from gldt_ros.launcher.pipeline import NODES
+    from gldt_ros.interface.graph import NODES
 
     times: dict[str, dict[str, float | None]] = {name: {"visible_s": None, "ready_s": None} for name in NODES}
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline and not children.dead():
         now = time.monotonic() - launch
-        for name, namespace in driver.get_node_names_and_namespaces():
+        for name, _namespace in driver.get_node_names_and_namespaces():
             if name in times and times[name]["visible_s"] is None:
                 times[name]["visible_s"] = now
         for name, entry in times.items():
@@ -448,7 +436,8 @@ def play(
     A frame that could not be published on time is published at once and counted as late (the
     player itself fell behind, e.g. on a loaded machine); it never bursts to catch up.
     """
-    from gldt_ros.launcher.bag_io import IMAGE_TYPES_SET, header_stamp_ns
+    from gldt_core.io.bag import IMAGE_TYPES
+    from gldt_core.io.cdr import header_stamp_ns, with_header_stamp
 
     period_ns = round(1e9 / rate_hz)
     first_stamp = header_stamp_ns(frames[0][-1].data)
@@ -464,8 +453,8 @@ def play(
             start = time.monotonic() - published / rate_hz  # re-anchor: no burst to catch up
         stamp = first_stamp + published * period_ns
         for message in frames[published % len(frames)]:
-            data = restamp(message.data, stamp)
-            if message.msgtype in IMAGE_TYPES_SET:
+            data = with_header_stamp(message.data, stamp)
+            if message.msgtype in IMAGE_TYPES:
                 driver.note_published(stamp)
             driver._publisher(message.topic, message.msgtype).publish(data)
         published += 1
@@ -491,7 +480,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--warmup",
         type=float,
         default=60.0,
-        help="seconds of replay before the first memory sample counts (frame_pair_buffer fills its buffers for most of the first minute)",
+        help="seconds of replay before the first memory sample counts "
+        "(frame_pair_buffer fills its buffers for most of the first minute)",
     )
     parser.add_argument("--sample-period", type=float, default=5.0, help="seconds between memory samples")
     parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: the package's)")
@@ -517,7 +507,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     interpreter_start = psutil.Process().create_time()
     report = run_soak(args, interpreter_start)
     if args.import_times:  # after the graph stopped, so the nodes do not compete with it
-        from gldt_ros.launcher.pipeline import NODES
+        from gldt_ros.interface.graph import NODES
 
         report["startup"]["import_times"] = measure_import_times(NODES)
     print(format_report(report), flush=True)
@@ -533,9 +523,10 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
     import rclpy
     from gldt_msgs.msg import TrackArray, TrackPredictions
 
+    from gldt_core.io.bag import IMAGE_TYPES, bag_messages
     from gldt_ros.interface import qos, topics
-    from gldt_ros.launcher.bag_io import IMAGE_TYPES_SET, iter_bag
-    from gldt_ros.launcher.pipeline import NODES, NodeProcesses, _supervise_until
+    from gldt_ros.interface.graph import NODES
+    from gldt_ros.launcher.pipeline import NodeProcesses, _supervise_until
     from gldt_ros.launcher.pipeline import parse_args as pipeline_args
     from gldt_ros.runtime.dds_profile import use_frames_profile_if_shipped, use_graph_dds_profile
     from gldt_ros.runtime.executor import background_executor
@@ -544,7 +535,7 @@ def run_soak(args: argparse.Namespace, interpreter_start: float) -> dict[str, An
         ["--default-malloc"] if args.default_malloc else []
     )
     pargs = pipeline_args(pipeline_argv + (["--params", str(args.params)] if args.params else []))
-    frames = group_frames(list(iter_bag(args.bag)), IMAGE_TYPES_SET)
+    frames = group_frames(list(bag_messages(args.bag, log_time_order=True)), IMAGE_TYPES)
     if not frames:
         raise SystemExit(f"soak_graph: no image frames in {args.bag}")
 

@@ -1,0 +1,1 @@
+"""Example users of the graph's outputs."""

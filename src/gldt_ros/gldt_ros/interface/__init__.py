@@ -1,0 +1,1 @@
+"""What the nodes and their users agree on: topics, QoS, parameters, messages, links, the graph."""

@@ -1,12 +1,15 @@
-"""``pipeline``: start the GL-DT graph, optionally replay a bag into it and record its outputs.
+"""``pipeline`` (``ros2 run gldt_ros pipeline``): start the GL-DT node graph, optionally replay a bag
+into it and record its outputs.
 
-Like a launch file, it starts each node in its own process by default (``--in-process`` runs all
-of them in one executor instead, which is handy for debugging and profiling). With ``--bag`` it
-plays the bag's camera, camera_info and ground-truth topics into the graph, either at the bag's
-pace times ``--rate`` or in ``--lockstep``: frame t+1 is only published after ``/gldt/tracks``
-has answered frame t, which makes a replay deterministic. ``--record OUT.mcap`` writes every
-output topic, with its type, to an MCAP file. The run ends at the bag's end or on Ctrl-C, and the
-child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if they hang).
+Like a launch file, it starts each node of the graph (:data:`gldt_ros.interface.graph.NODES`) in
+its own process by default (``--in-process`` runs all of them in one executor instead, which is
+handy for debugging and profiling). With ``--bag`` it plays the bag's camera, camera_info and
+ground-truth topics into the graph, either at the bag's pace times ``--rate`` or in
+``--lockstep``: frame t+1 is only published after ``/gldt/tracks`` has answered frame t, which
+makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver` plays and records).
+``--record OUT.mcap`` writes every output topic, with its type, to an MCAP file. The run ends at
+the bag's end or on Ctrl-C, and the child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if
+they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`).
 """
 
 from __future__ import annotations
@@ -21,7 +24,9 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
+from gldt_ros.interface.graph import NODES, default_params_file
 from gldt_ros.runtime.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.runtime.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, background_executor, executor_kind
 from gldt_ros.runtime.heap_trim import DEFAULT_PERIOD_S, HEAP_TRIM_PERIOD_ENV, start_heap_trimming
@@ -29,28 +34,14 @@ from gldt_ros.runtime.shm_cleanup import MIN_AGE_S, remove_dead_segments
 from gldt_ros.runtime.stack_dump import STACK_DUMP_SIGNAL
 from gldt_ros.runtime.teardown_limit import TEARDOWN_LIMIT_S, TEARDOWN_TIMEOUT_EXIT
 
-NODES = ("frame_pair_buffer", "mode_scheduler", "global_detector", "local_detector", "jptrack_tracker")
-
-
-def default_params_file() -> Path:
-    """``share/gldt_ros/config/gldt.yaml`` of the installed package (or the source tree)."""
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        return Path(get_package_share_directory("gldt_ros")) / "config" / "gldt.yaml"
-    except Exception:  # noqa: BLE001 - the ament index is optional when run from source
-        return Path(__file__).resolve().parents[1] / "config" / "gldt.yaml"
-
-
 #: Memory settings for the node processes, applied where the user has not set them. A node handles
 #: buffers of a MiB or more every frame (a decoded 1080p frame is 6 MiB). With glibc's defaults
 #: they come from the heap, which only shrinks from its top, so resident memory climbs in steps
-#: over a long run (frame_pair_buffer +17.0 % over 10 min at 30 Hz, gldt_ros.bench.soak). Each node
-#: therefore calls malloc_trim every second (gldt_ros.runtime.heap_trim), which returns free pages from
-#: anywhere in the heap, and two arenas bound the per-thread growth. The former cure, a fixed 512 KiB
-#: mmap threshold (MALLOC_MMAP_THRESHOLD_=524288), gave every such buffer fresh pages to fault in:
-#: the 1080p bag's lockstep replay ran at 27.7 fps with it and 34.5-35.2 fps with trimming, two
-#: alternated runs each (2026-12-02); the memory figures are in the README (Results).
+#: over a long run (``python -m gldt_ros.bench.soak`` shows it). Each node therefore calls
+#: malloc_trim every second (:mod:`gldt_ros.runtime.heap_trim`), which returns free pages from
+#: anywhere in the heap, and two arenas bound the per-thread growth. A fixed mmap threshold
+#: (``MALLOC_MMAP_THRESHOLD_``) would bound the heap too, but gives every such buffer fresh pages
+#: to fault in on every frame, which slows the whole replay down (``docs/experiment-log.md``).
 NODE_MALLOC_SETTINGS = {"MALLOC_ARENA_MAX": "2", HEAP_TRIM_PERIOD_ENV: f"{DEFAULT_PERIOD_S:g}"}
 
 
@@ -92,7 +83,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--default-malloc",
         dest="tune_malloc",
         action="store_false",
-        help=f"start node processes with glibc's default malloc and no heap trimming instead of {' '.join(f'{k}={v}' for k, v in NODE_MALLOC_SETTINGS.items())}",
+        help="start node processes with glibc's default malloc and no heap trimming instead of "
+        + " ".join(f"{key}={value}" for key, value in NODE_MALLOC_SETTINGS.items()),
     )
     parser.add_argument(
         "--no-spare",
@@ -105,13 +97,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         type=float,
         default=SPARE_DELAY_S,
         metavar="S",
-        help=f"seconds after start-up and after each restart before the warm spare starts importing (default {SPARE_DELAY_S:g}); a node that dies sooner restarts from scratch",
+        help="seconds after start-up and after each restart before the warm spare starts importing "
+        f"(default {SPARE_DELAY_S:g}); a node that dies sooner restarts from scratch",
     )
     parser.add_argument(
         "--executor",
         choices=EXECUTOR_CHOICES,
         default=None,
-        help=f"rclpy executor of the node processes and of the player (default: ${EXECUTOR_ENV}, else events; single is rclpy's Python executors, see gldt_ros.runtime.executor; --in-process keeps a thread pool)",
+        help=f"rclpy executor of the node processes and of the player (default: ${EXECUTOR_ENV}, else events; "
+        "single is rclpy's Python executors, see gldt_ros.runtime.executor; --in-process keeps a thread pool)",
     )
     args = parser.parse_args(argv)
     if args.executor is None:
@@ -155,17 +149,16 @@ def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
 
 def node_command(name: str, args: argparse.Namespace) -> list[str]:
     """Command line of one node process."""
-    command = [sys.executable, "-m", f"gldt_ros.nodes.{name}", *node_ros_args(name, args)]
+    command = [sys.executable, "-m", NODES[name], *node_ros_args(name, args)]
     if args.namespace:
         command += ["-r", f"__ns:=/{args.namespace.strip('/')}"]
     return command
 
 
 #: Default seconds after start-up, and after each restart, before a spare is started: its imports
-#: (rclpy, numpy, OpenCV, onnxruntime, the core) take CPU the nodes need then. Started with the
-#: nodes, it made the global detector skip 2-5 frames, near the start, of a 30 Hz 1080p replay
-#: (85-88 of 90 answered, p99 80-109 ms, against 89-90 and 61-76 ms without a spare; three
-#: alternated runs each, 2026-12-02).
+#: (rclpy, numpy, OpenCV, onnxruntime, the core) take CPU the nodes need then: a spare started
+#: together with the nodes makes the global detector skip frames near the start of a 30 Hz replay
+#: on a small machine. A node that dies sooner than this restarts from scratch, as without a spare.
 SPARE_DELAY_S = 5.0
 
 
@@ -285,10 +278,8 @@ class NodeProcesses:
             for name in dying:
                 self.restarts[name] += 1
                 code = self.processes[name].returncode
-                print(
-                    f"pipeline: node {name} exited with code {code}; restarting ({self.restarts[name]}/{self.args.max_restarts})",
-                    flush=True,
-                )
+                attempt = f"{self.restarts[name]}/{self.args.max_restarts}"
+                print(f"pipeline: node {name} exited with code {code}; restarting ({attempt})", flush=True)
                 self._start(name)
                 self._spare_due = time.monotonic() + self.args.spare_delay
                 restarted.append(name)
@@ -324,7 +315,8 @@ class NodeProcesses:
                 code = process.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
                 print(
-                    f"pipeline: node {name} did not stop within {grace_s:g} s of SIGINT; its threads' stacks follow, then SIGTERM",
+                    f"pipeline: node {name} did not stop within {grace_s:g} s of SIGINT; "
+                    "its threads' stacks follow, then SIGTERM",
                     flush=True,
                 )
                 process.send_signal(STACK_DUMP_SIGNAL)
@@ -338,7 +330,8 @@ class NodeProcesses:
             if code == TEARDOWN_TIMEOUT_EXIT:
                 # Stopped serving, then stuck in rclpy's destroy_node; it ended itself (its stacks are above).
                 print(
-                    f"pipeline: node {name} stopped, but its rclpy teardown hung and it exited after {TEARDOWN_LIMIT_S} s",
+                    f"pipeline: node {name} stopped, but its rclpy teardown hung "
+                    f"and it exited after {TEARDOWN_LIMIT_S} s",
                     flush=True,
                 )
             elif code not in (0, -signal.SIGINT, 130):
@@ -372,11 +365,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     stop_requested = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
     children: NodeProcesses | None = None
-    in_process_nodes = []
-    # --in-process: the five nodes share this process's executor, the events executor unless
-    # --executor single. rclpy's thread pool made a lockstep replay crawl at 1 fps there: with a
-    # node's callback running, its other subscriptions stay ready, and the pool's wait loop spun
-    # on them holding the GIL the running callback needed (py-spy, 2026-12-02).
+    in_process_nodes: list[Any] = []
+    # --in-process: the graph's nodes share this process's executor, the events executor unless
+    # --executor single. rclpy's thread pool makes a lockstep replay crawl there: with a node's
+    # callback running, its other subscriptions stay ready, and the pool's wait loop spins on them
+    # holding the GIL the running callback needs.
     executor, spin = background_executor(args.executor)
     driver = GraphDriver(args)
     executor.add_node(driver)
@@ -446,13 +439,13 @@ def _supervise_until(
         children.supervise(on_restart)
 
 
-def _create_in_process_nodes(args: argparse.Namespace) -> list:
+def _create_in_process_nodes(args: argparse.Namespace) -> list[Any]:
     """Instantiate every node in this process with the parameter file applied."""
     import importlib
 
     return [
-        importlib.import_module(f"gldt_ros.nodes.{name}").create_node(cli_args=node_ros_args(name, args))
-        for name in NODES
+        importlib.import_module(module).create_node(cli_args=node_ros_args(name, args))
+        for name, module in NODES.items()
     ]
 
 

@@ -1,4 +1,9 @@
-"""The pipeline's own node: waits for the graph, plays a bag into it, records its outputs."""
+"""The ``pipeline`` command's own node: waits for the graph, plays a bag into it, records its outputs.
+
+:class:`GraphDriver` knows the graph's nodes (:data:`gldt_ros.interface.graph.NODES`) and judges
+the link reports they publish (:mod:`gldt_ros.interface.graph_links`); the command itself
+(:mod:`gldt_ros.launcher.pipeline`) starts and supervises the node processes.
+"""
 
 from __future__ import annotations
 
@@ -11,16 +16,19 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from gldt_core.io.bag import IMAGE_TYPES, bag_channel_types, bag_messages
+from gldt_core.io.cdr import header_stamp_ns
+from gldt_core.io.mcap_file import McapWriter
 from gldt_ros.interface import qos, topics
-from gldt_ros.launcher.bag_io import IMAGE_TYPES_SET, McapRecorder, bag_topics, header_stamp_ns, iter_bag, message_class
-from gldt_ros.launcher.graph_links import (
+from gldt_ros.interface.graph import NODES
+from gldt_ros.interface.graph_links import (
     missing_links,
     node_endpoint_gids,
     own_link_counts,
     parse_link_counts,
     reporting_nodes_missing,
 )
-from gldt_ros.launcher.pipeline import NODES
+from gldt_ros.launcher.bag_io import message_class
 from gldt_ros.runtime.node_base import STATUS_NAME_PREFIX
 
 #: Subscriptions each node creates last, once its models and state are ready: the graph is up when
@@ -72,7 +80,7 @@ class GraphDriver(Node):
         # Newest header stamp received per recorded topic: a lockstep replay closes the recording
         # only once every topic has caught up with the last frame (see wait_until_recorded).
         self._newest_recorded: dict[str, int] = {}
-        self.recorder = McapRecorder(args.record) if args.record else None
+        self.recorder = McapWriter(args.record) if args.record else None
         for topic, msgtype in RECORDED_TOPICS.items():
             self.create_subscription(
                 message_class(msgtype),
@@ -211,13 +219,13 @@ class GraphDriver(Node):
         nodes' own links (tracker to scheduler, scheduler to buffer, ...) match on their own time.
         """
         image_publishers = []
-        for topic, msgtype in bag_topics(self.args.bag).items():
+        for topic, msgtype in bag_channel_types(self.args.bag).items():
             try:
                 publisher = self._publisher(topic, msgtype)
             except ValueError as error:
                 self.get_logger().warning(f"not replaying topic {topic}: {error}")
                 continue
-            if msgtype in IMAGE_TYPES_SET:
+            if msgtype in IMAGE_TYPES:
                 image_publishers.append(publisher)
         deadline = time.monotonic() + timeout_s
         while image_publishers and not stop.is_set() and time.monotonic() < deadline:
@@ -232,7 +240,7 @@ class GraphDriver(Node):
 
     def wait_until_linked(self, node_names: list[str], stop: threading.Event, timeout_s: float) -> bool:
         """Block until each named node, and this one, has matched every endpoint this process sees
-        on its topics (:mod:`gldt_ros.launcher.graph_links`); on timeout log what is missing and go on."""
+        on its topics (:mod:`gldt_ros.interface.graph_links`); on timeout log what is missing and go on."""
         deadline = time.monotonic() + timeout_s
         missing: list[str] = []
         while not stop.is_set():
@@ -264,7 +272,7 @@ class GraphDriver(Node):
         first_log_ns: int | None = None
         last_stamp: int | None = None
         try:
-            for message in iter_bag(self.args.bag):
+            for message in bag_messages(self.args.bag, log_time_order=True):
                 if stop.is_set():
                     break
                 try:
@@ -280,16 +288,16 @@ class GraphDriver(Node):
                     delay = due - time.monotonic()
                     if delay > 0:
                         stop.wait(delay)
-                if message.msgtype in IMAGE_TYPES_SET:
+                if message.msgtype in IMAGE_TYPES:
                     last_stamp = header_stamp_ns(message.data)
                     relinked = self._relink_after_restarts(stop, dead) if self.args.lockstep else None
                     if relinked is not None:
                         print(f"pipeline: {relinked}; next frame stamped {last_stamp}", flush=True)
                     self.note_published(last_stamp)
                 publisher.publish(message.data)
-                if message.msgtype in IMAGE_TYPES_SET:
+                if message.msgtype in IMAGE_TYPES:
                     frames += 1
-                    if self.args.lockstep and not self._wait_answer(last_stamp, stop, dead):
+                    if self.args.lockstep and last_stamp is not None and not self._wait_answer(last_stamp, stop, dead):
                         waited_out += 1
         except ValueError as error:
             self.get_logger().error(str(error))

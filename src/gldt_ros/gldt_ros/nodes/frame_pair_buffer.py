@@ -25,7 +25,6 @@ from sensor_msgs.msg import CompressedImage, Image
 
 from gldt_core.detect import GlobalDetector, LocalDetector
 from gldt_core.detect.postprocess import Letterbox
-from gldt_core.detect.staged import prepare_global_input
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import bgr_to_image, image_to_bgr, msgs_to_rois, stamp_nanoseconds, track_array_to_rows
 from gldt_ros.runtime.node_base import GldtNode, run_node
@@ -82,9 +81,9 @@ class FramePairBuffer(GldtNode):
         )
         self.ticks = self.create_publisher(FrameTick, topics.FRAME_TICKS, qos.RELIABLE)
         # A pair is 2 MB, and a reliable writer keeps its last `depth` samples for resending. The
-        # global detector only wants the newest pair (its pair_queue_depth), so two are enough.
-        # With thirty (qos.RELIABLE) this process settled at about 200 MiB instead of 146 MiB
-        # (gldt_ros.bench.soak, 10 min), in steps as the writer's history filled.
+        # global detector only wants the newest pair (its pair_queue_depth), so two are enough;
+        # with qos.RELIABLE's thirty, this process's memory grows in steps as the writer's history
+        # fills (python -m gldt_ros.bench.soak shows it).
         self.pairs = self.create_publisher(FramePair, topics.FRAME_PAIRS, qos.newest_first(PAIRS_KEPT))
         self.crops = self.create_publisher(RoiCrops, topics.ROI_CROPS, qos.RELIABLE)
         # Debug overlay: drawn here, where the full frame is, and only while someone watches.
@@ -115,7 +114,7 @@ class FramePairBuffer(GldtNode):
         if self._last_mode == SchedulerState.MODE_GLOBAL:
             # Done while the tracker and the scheduler decide this frame; in a GD stretch the
             # decision is GLOBAL again, and the pair leaves as soon as it comes.
-            buffered.prepared = prepare_global_input(self.global_input, frame)
+            buffered.prepared = self.global_input.prepare(frame)
 
     def on_decision(self, decision: SchedulerState) -> None:
         index = int(decision.frame_index)
@@ -127,7 +126,7 @@ class FramePairBuffer(GldtNode):
         previous = previous_buffered.image if previous_buffered is not None else frame
         self._last_mode = decision.mode
         if decision.mode == SchedulerState.MODE_GLOBAL:
-            prepared_current, letterbox = buffered.prepared or prepare_global_input(self.global_input, frame)
+            prepared_current, letterbox = buffered.prepared or self.global_input.prepare(frame)
             if self._previous_index is None:
                 prepared_previous = prepared_current
             elif self.detector_holds_frame(self._previous_index):
@@ -135,7 +134,7 @@ class FramePairBuffer(GldtNode):
             elif self._last_prepared is not None and self._last_prepared[0] == self._previous_index:
                 prepared_previous = self._last_prepared[1]
             else:
-                prepared_previous, _ = prepare_global_input(self.global_input, previous)
+                prepared_previous, _ = self.global_input.prepare(previous)
             self._last_prepared = (index, prepared_current)
             previous_image = (
                 Image(header=header) if prepared_previous is None else bgr_to_image(prepared_previous, header)

@@ -2,7 +2,7 @@
 
 It receives the pair already resized to the model's input by ``frame_pair_buffer`` and maps the
 boxes back to full-frame pixels with the pair's scale, exactly as the offline detector does.
-Like the offline pipeline it keeps the last pair's current-frame features (AM-YOLO's split pair,
+Like the offline GL-DT system it keeps the last pair's current-frame features (AM-YOLO's split pair,
 ``gldt export --feature-reuse``) and reuses them when the next pair's previous frame is that very
 image, which in a GD stretch it is; any other pair (one skipped, a restarted buffer) recomputes them.
 Once it has answered a pair, the buffer sends the next one without its previous image (it is the
@@ -18,9 +18,8 @@ from typing import Any
 import numpy as np
 from gldt_msgs.msg import Detection, DetectionArray, FramePair
 
-from gldt_core.detect import GlobalDetector
+from gldt_core.detect import GlobalCarry, GlobalDetector
 from gldt_core.detect.postprocess import Letterbox
-from gldt_core.detect.staged import GlobalCarry, detect_global_streamed
 from gldt_core.system.steps import filter_classes
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr
@@ -37,9 +36,9 @@ class GlobalDetectorNode(GldtNode):
         super().__init__("global_detector", **kwargs)
         self.detector = GlobalDetector(**detector_kwargs(self.param))
         self.classes = parse_classes(self.param("classes"))
-        # AM-YOLO takes longer than a frame period here (about 100 ms on 2 cores), so during a GD
-        # stretch at 30 Hz pairs arrive faster than it answers; queueing them put whole seconds
-        # between camera and tracks. By default it skips to the newest pair instead.
+        # On a small CPU AM-YOLO takes longer than a frame period, so during a GD stretch at 30 Hz
+        # pairs arrive faster than it answers, and queueing them puts whole seconds between camera
+        # and tracks. By default it skips to the newest pair instead.
         pairs_qos = qos.newest_first(int(self.param("pair_queue_depth")))
         self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), pairs_qos)
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
@@ -55,8 +54,8 @@ class GlobalDetectorNode(GldtNode):
         blank = np.zeros((height, width, 3), np.uint8)
         features = None
         for _ in range(WARM_UP_RUNS):
-            _, features = detect_global_streamed(
-                self.detector, blank, blank, Letterbox(1.0, 0, 0, width, height), width, height, features
+            _, features = self.detector.detect_prepared(
+                blank, blank, Letterbox(1.0, 0, 0, width, height), width, height, features
             )
 
     def reusable_features(self, previous: np.ndarray) -> np.ndarray | None:
@@ -90,8 +89,8 @@ class GlobalDetectorNode(GldtNode):
             previous_features = self.reusable_features(previous)
         letterbox = Letterbox(pair.scale, int(pair.pad_x), int(pair.pad_y), current.shape[1], current.shape[0])
         self.last_pair, self.last_pair_index = None, None
-        raw, current_features = detect_global_streamed(
-            self.detector, previous, current, letterbox, int(pair.full_width), int(pair.full_height), previous_features
+        raw, current_features = self.detector.detect_prepared(
+            previous, current, letterbox, int(pair.full_width), int(pair.full_height), previous_features
         )
         self.last_pair, self.last_pair_index = GlobalCarry(current, current_features), int(pair.frame_index)
         detections = filter_classes(raw, 6, self.classes)

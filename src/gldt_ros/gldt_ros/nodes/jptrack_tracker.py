@@ -2,7 +2,7 @@
 
 Besides the tracks it answers every ``FrameTick`` with the Kalman predictions of the tracks
 worth an ROI at that frame's time (``TrackPredictions`` for the mode scheduler), using the same
-core function as the offline pipeline. With ``/camera/camera_info`` known, each track carries
+core function as the offline GL-DT system. With ``/camera/camera_info`` known, each track carries
 its bearing, bearing rate and a looming time-to-collision for avoidance planners.
 """
 
@@ -36,7 +36,7 @@ class TrackerNode(GldtNode):
         self.tracker = build_tracker(self.config)
         self._takes_rois = accepts_keyword(self.tracker.update, "rois")
         self._frame_size: tuple[int, int] | None = None
-        self.intrinsics = None
+        self.intrinsics: PinholeIntrinsics | None = None
         self._order = StampOrder()
         self._last_tracked_stamp = Time()  # zero: nothing tracked yet
         self.create_subscription(

@@ -2,7 +2,7 @@
 
 Crops arrive from ``frame_pair_buffer`` (only in LOCAL mode); detections are mapped back to
 full-frame pixels by each crop's ROI offset, and duplicates across overlapping ROIs are removed
-with the same NMS the offline pipeline uses.
+with the same NMS the offline GL-DT system uses.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from typing import Any
 from gldt_msgs.msg import Detection, DetectionArray, RoiCrops
 
 from gldt_core.detect import LocalDetector
-from gldt_core.detect.staged import detect_local_crops
 from gldt_core.system.steps import merge_local_detections
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr, msgs_to_rois
@@ -33,7 +32,7 @@ class LocalDetectorNode(GldtNode):
         start = time.perf_counter()
         rois = msgs_to_rois(message.rois)
         crops = [image_to_bgr(crop) for crop in message.crops]
-        raw = detect_local_crops(self.detector, crops, rois, int(message.full_width), int(message.full_height))
+        raw = self.detector.detect_crops(crops, rois, int(message.full_width), int(message.full_height))
         detections = merge_local_detections(raw, self.classes, float(self.param("nms_iou")))
         self.publisher.publish(
             DetectionArray(

@@ -104,7 +104,8 @@ class ModeSchedulerNode(GldtNode):
                     return
                 self.warn_throttled(
                     "abandoned-frame",
-                    f"LOCAL frame {self._awaiting_report} was given up (never tracked); planning on without its detections",
+                    f"LOCAL frame {self._awaiting_report} was given up (never tracked); "
+                    "planning on without its detections",
                 )
                 self._awaiting_report = None
             self._plan(self._queue.popleft())

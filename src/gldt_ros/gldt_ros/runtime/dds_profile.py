@@ -1,20 +1,17 @@
 """The Fast DDS profiles of the graph.
 
-``config/fastdds_profile.xml`` (the file says what each setting buys and what was measured) is
-what ``pipeline`` points Fast DDS at, through :data:`DDS_PROFILE_VARIABLE`, unless the user
-exported a profile of their own. The processes that publish frames (frame_pair_buffer, and the
-``pipeline`` process itself, which plays the camera) switch to its twin
-``config/fastdds_profile_frames.xml``, whose larger shared-memory segment carries a frame pair
-in one piece instead of 512 KiB fragments; the segment is allocated whole, so the other nodes
-keep the small one.
+``config/fastdds_profile.xml`` (the file says what each setting is for) is what ``pipeline``
+points Fast DDS at, through :data:`DDS_PROFILE_VARIABLE`, unless the user exported a profile of
+their own. The processes that publish frames (frame_pair_buffer, and the ``pipeline`` process
+itself, which plays the camera) switch to its twin ``config/fastdds_profile_frames.xml``, whose
+larger shared-memory segment carries a frame pair in one piece instead of 512 KiB fragments; the
+segment is allocated whole, so the other nodes keep the small one.
 
 A restarted node keeps Fast DDS's choice of participant id, which after a crash is the dead
 process's, so it opens the dead process's shared-memory ports (the profile's 100 ms health check
-bounds what that costs). Giving it a fresh id instead was tried three times, and each time a
-restarted node sometimes went deaf to one of its inputs and the lockstep replay stalled. The
-last try, with the 100 ms check, restarted in 0.53-0.77 s (median per node, worst 0.93 s), and
-passed 35 kill runs in a row, but a fresh-clone CI run then stalled: the restarted local
-detector took 10 ROI batches and then no more.
+bounds what that costs). Giving it a fresh id instead was tried, more than once: each time a
+restarted node sometimes went deaf to one of its inputs for good and the lockstep replay stalled
+(``docs/experiment-log.md`` has the runs).
 """
 
 from __future__ import annotations
@@ -22,21 +19,21 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from gldt_ros.interface.graph import shipped_config
+
 #: Environment variable through which Fast DDS (rmw_fastrtps_cpp) loads default participant settings.
 DDS_PROFILE_VARIABLE = "FASTRTPS_DEFAULT_PROFILES_FILE"
 
 
 def shipped_profile() -> Path:
     """``share/gldt_ros/config/fastdds_profile.xml`` of the installed package (or the source tree)."""
-    from gldt_ros.launcher.pipeline import default_params_file
-
-    return default_params_file().with_name("fastdds_profile.xml")
+    return shipped_config("fastdds_profile.xml")
 
 
 def shipped_frames_profile() -> Path:
     """``share/gldt_ros/config/fastdds_profile_frames.xml``: the shipped profile with an 8 MiB
     shared-memory segment, for processes that publish frames."""
-    return shipped_profile().with_name("fastdds_profile_frames.xml")
+    return shipped_config("fastdds_profile_frames.xml")
 
 
 def use_frames_profile_if_shipped() -> str:

@@ -1,32 +1,29 @@
 """Which rclpy executor a node process spins, and the loop that spins it.
 
 rclpy's Python executors rebuild a wait set of every subscription, timer, parameter service and
-guard condition on each callback, in Python. In a five-node graph on two cores that work sits on
-every hop of a frame's chain: a py-spy profile of a lockstep replay (2026-12-01) found the
-tracker and the scheduler spending about half of their non-idle samples in
-``Executor.wait_for_ready_callbacks``. rclpy's C++ ``EventsExecutor`` (``rclpy.experimental``,
-in Jazzy since rclpy 7.1.4) dispatches from middleware events instead: the small hops of an LD
-frame dropped from 1.4-2.4 ms to 0.7-1.4 ms each (``python -m gldt_ros.bench.hops``), and a
-lockstep replay of the real sample bag from 51-53 to 29-39 ms per frame (``bench_graph``, README).
+guard condition on each callback, in Python. In a graph of several nodes on few cores that work
+sits on every hop of a frame's chain, and profiles of a lockstep replay find the nodes spending a
+large share of their busy time in ``Executor.wait_for_ready_callbacks``. rclpy's C++
+``EventsExecutor`` (``rclpy.experimental``, in Jazzy since rclpy 7.1.4) dispatches from
+middleware events instead, which shortens each small hop (``python -m gldt_ros.bench.hops``
+measures them) and so the whole lockstep replay (``python -m gldt_ros.bench.graph``).
 
-``events`` is the default (2026-12-02); ``GLDT_EXECUTOR=single`` (or ``pipeline --executor
-single``) goes back to rclpy's Python executors, ``rclpy.spin`` in the nodes and a thread pool in
-``pipeline``. It was opt-in until then: a fresh-clone CI run (2026-12-01) with events as the
-default ended a lockstep replay with a local_detector that ignored SIGINT and SIGTERM and had to be
-killed, and 2 of 21 runs of the graph suites (2026-12-02) did the same. A stack dump
-(:mod:`gldt_ros.runtime.stack_dump`) placed the hang inside rclpy's ``Node.destroy_node``, after the spin
-had ended, and the old executors were later caught hanging in teardown too
-(``Publisher.destroy``). Since every node's teardown is bounded (:mod:`gldt_ros.runtime.teardown_limit`:
-3 s, then ``_exit``), such a hang costs 3 s and is reported, not failed: 12 runs in a row of the
-replay, recording, fault, spare and link suites with events passed (30 tests each, 2026-12-02),
-and so did 5 more with it as the default and a fresh-clone ``make test``. Without ``rclpy.experimental.EventsExecutor`` (rclpy
-older than 7.1.4) the default falls back to ``single``.
+``events`` is therefore the default; ``GLDT_EXECUTOR=single`` (or ``pipeline --executor single``)
+selects rclpy's Python executors instead: ``rclpy.spin`` in the nodes and a thread pool in
+``pipeline``. Without ``rclpy.experimental.EventsExecutor`` (rclpy older than 7.1.4) the default
+falls back to ``single``.
 
-The events executor is driven by :meth:`spin_once` with a timeout, never by its ``spin()``: in
-rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()`` dispatched nothing and kept the GIL (a
-timer callback never ran and another thread's ``threading.Timer`` never fired), while
-``spin_once`` works and lets other threads run. The timeout bounds how long a stop can go
-unnoticed if a shutdown's wake-up were ever missed.
+Either executor can, rarely, leave a node stuck in rclpy's teardown (``Node.destroy_node``,
+``Publisher.destroy``) after its spin has ended. Every node's teardown is therefore bounded
+(:mod:`gldt_ros.runtime.teardown_limit`), so such a hang costs a few seconds and is reported with
+the stuck threads' stacks (:mod:`gldt_ros.runtime.stack_dump`) instead of failing the run. The
+history of these choices is in ``docs/experiment-log.md``.
+
+The events executor is driven by :meth:`EventsSpinner.spin`, a loop of ``spin_once`` with a
+timeout, never by its own ``spin()``: in rclpy 7.1.5 (the ros-jazzy-rclpy 7.1.6 wheel), ``spin()``
+dispatched nothing and kept the GIL (a timer callback never ran and another thread's
+``threading.Timer`` never fired), while ``spin_once`` works and lets other threads run. The
+timeout bounds how long a stop can go unnoticed if a shutdown's wake-up were ever missed.
 """
 
 from __future__ import annotations
@@ -112,10 +109,10 @@ def quiet_sigint_for_events_executor() -> None:
     Call before ``rclpy.init``. rclpy's SIGINT handler shuts the contexts down (which wakes the
     executor) and then calls the handler that was installed before it: Python's default one
     raises KeyboardInterrupt wherever the main thread happens to be. With the events executor
-    that is mostly inside a callback the C++ executor is running (a diagnostics or link timer):
-    it logged "Exception in 'timers' callback" as FATAL in 5 of 15 lockstep replays
-    (2026-12-01). This installs a no-op handler for rclpy to chain to; the spin loop then ends
-    on the context's shutdown.
+    that is mostly inside a callback the C++ executor is running (a diagnostics or link timer),
+    which then logs "Exception in 'timers' callback" as FATAL for what is an ordinary stop. This
+    installs a no-op handler for rclpy to chain to; the spin loop then ends on the context's
+    shutdown.
     """
     import signal
 
@@ -129,9 +126,8 @@ def spin_node(node: Any, kind: str) -> None:
     import rclpy
 
     if kind == SINGLE:
-        # rclpy's global executor: with an explicit SingleThreadedExecutor a node once failed to
-        # stop on SIGINT within 10 s at the end of 1 of 6 kill-test runs (2026-12-01); with this
-        # loop, none of 21.
+        # rclpy's global executor, not an explicit SingleThreadedExecutor: with the latter a node
+        # sometimes failed to stop on SIGINT within pipeline's grace period.
         rclpy.spin(node)
         return
     spinner = EventsSpinner(node.context)
@@ -145,8 +141,8 @@ def spin_node(node: Any, kind: str) -> None:
 def background_executor(kind: str, threads: int = 4) -> tuple[Any, Callable[[], None]]:
     """``(executor, spin)`` for a process that spins its node on a background thread while its
     main thread works (``pipeline``'s player and recorder, the soak's driver): an
-    :class:`EventsSpinner` for ``events``, else a ``MultiThreadedExecutor`` of ``threads`` (what
-    ``pipeline`` used before). ``spin`` runs until shutdown and treats a shutdown's races as a stop."""
+    :class:`EventsSpinner` for ``events``, else a ``MultiThreadedExecutor`` of ``threads``.
+    ``spin`` runs until shutdown and treats a shutdown's races as a stop."""
     from gldt_ros.runtime.spin import spin_until_shutdown
 
     if kind == SINGLE:

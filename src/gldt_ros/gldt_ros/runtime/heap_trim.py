@@ -4,11 +4,10 @@ Why: a node process churns through large buffers every frame (a decoded 1080p fr
 a letterboxed pair 1.5 MB, the global detector's input blob 3 MB). With glibc's defaults those
 come from the heap and are reused, but the heap only ever shrinks from its top, so small
 long-lived allocations left between the big ones pin it and the resident size grows in steps
-(frame_pair_buffer: +17 % over 10 minutes, ``gldt_ros.bench.soak``). The earlier cure,
-``MALLOC_MMAP_THRESHOLD_=524288``, gives each big buffer its own fresh ``mmap``, whose pages
-fault in one by one on first touch: a 1080p frame took 9.2-9.4 ms instead of 5.1-5.2 ms from
-camera to frame tick (``gldt_ros.bench.hops``; mostly the JPEG decode), and the lockstep replay
-of the 1080p bag lost a fifth of its speed.
+over a long run (``python -m gldt_ros.bench.soak`` measures it). A fixed mmap threshold
+(``MALLOC_MMAP_THRESHOLD_``) would bound the heap as well, but gives each big buffer its own
+fresh ``mmap``, whose pages fault in one by one on first touch: every frame's decode and
+letterbox pay for it (``python -m gldt_ros.bench.hops`` shows the camera-to-tick hop grow).
 
 ``malloc_trim(0)`` instead returns every whole free page anywhere in the heap (``madvise``),
 so the resident size tracks what is live while the buffers keep coming from the heap. It runs

@@ -7,8 +7,11 @@ the node's ``/diagnostics`` status and logged in one line, repeats of the same k
 second (:mod:`gldt_ros.runtime.log_throttle`).
 
 The diagnostics also carry how many peers each of the node's topics has matched
-(:mod:`gldt_ros.launcher.graph_links`), republished as soon as that changes: it is how the pipeline knows
-the graph is connected end to end before it sends the first frame.
+(:mod:`gldt_ros.interface.graph_links`), republished as soon as that changes: it is how the
+``pipeline`` command knows the graph is connected end to end before it sends the first frame.
+
+:func:`run_node` is every node's ``main``: it applies the process-wide runtime settings of this
+package (executor, heap trimming, DDS profile, stack dumps, bounded teardown) and spins the node.
 """
 
 from __future__ import annotations
@@ -23,8 +26,8 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from gldt_ros.interface import qos, topics
+from gldt_ros.interface.graph_links import link_key_values, own_link_counts
 from gldt_ros.interface.params import SCHEMA, ParamSpec
-from gldt_ros.launcher.graph_links import link_key_values, own_link_counts
 from gldt_ros.runtime.dds_profile import use_frames_profile_if_shipped
 from gldt_ros.runtime.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_node
 from gldt_ros.runtime.heap_trim import start_heap_trimming, trim_period_from_env
@@ -152,9 +155,11 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
         descriptor.additional_constraints = "one of: " + ", ".join(spec.choices)
     if isinstance(spec.default, bool):
         return descriptor
-    if isinstance(spec.default, int) and spec.minimum is not None:
+    if spec.minimum is None or spec.maximum is None:  # the schema gives numbers both bounds or neither
+        return descriptor
+    if isinstance(spec.default, int):
         descriptor.integer_range = [IntegerRange(from_value=int(spec.minimum), to_value=int(spec.maximum), step=1)]
-    elif isinstance(spec.default, float) and spec.minimum is not None:
+    elif isinstance(spec.default, float):
         descriptor.floating_point_range = [
             FloatingPointRange(from_value=float(spec.minimum), to_value=float(spec.maximum), step=0.0)
         ]

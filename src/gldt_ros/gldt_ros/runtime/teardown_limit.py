@@ -1,9 +1,9 @@
 """A node's teardown after its spin has ended gets a few seconds, not forever.
 
-rclpy's ``Node.destroy_node`` sometimes never returns at the end of a replay: the stack dumps
-(:mod:`gldt_ros.runtime.stack_dump`) caught it inside ``Publisher.destroy`` (rclpy's own executors, after a
-killed and restarted frame_pair_buffer) and inside the type-description service's destroy (the
-events executor), about once in 100 graph runs. By then the node has stopped serving and every
+rclpy's ``Node.destroy_node`` rarely, but sometimes, never returns at the end of a replay: stack
+dumps (:mod:`gldt_ros.runtime.stack_dump`) caught it inside ``Publisher.destroy`` (rclpy's own
+executors, after a killed and restarted frame_pair_buffer) and inside the type-description
+service's destroy (the events executor). By then the node has stopped serving and every
 message it owed is out, so waiting longer only costs the caller ``pipeline``'s grace period and a
 SIGKILL. The stuck call holds the GIL, so no Python timer can end it: the limit is the kernel's
 ``alarm`` with libc's ``_exit`` as the SIGALRM handler, which exits with status

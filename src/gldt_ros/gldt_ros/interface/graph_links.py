@@ -6,15 +6,18 @@ subscription, is visible to one process says nothing about whether two *other* p
 found each other yet, so a frame sent right after start-up can vanish between two nodes.
 
 Each GL-DT node therefore reports, in its ``/diagnostics`` status, how many peers each of its
-topics has matched (:func:`own_link_counts`, :func:`link_key_values`). A process that knows the
-graph (the pipeline's driver) compares those reports with what it sees itself
-(:func:`missing_links`): every endpoint it can see on a topic must also be matched by each node
-on that topic. Nodes report facts; only the driver, which started the graph, judges them.
+topics has matched (:func:`own_link_counts`, :func:`link_key_values`; written by
+:class:`gldt_ros.runtime.node_base.GldtNode`). A process that knows the graph (the ``pipeline``
+command's driver, :class:`gldt_ros.launcher.replay.GraphDriver`) compares those reports with what
+it sees itself (:func:`missing_links`): every endpoint it can see on a topic must also be matched
+by each node on that topic. Nodes report facts; only the driver, which started the graph, judges
+them. Both sides read the report's format from here, which is why it is part of the interface.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from typing import Any, Protocol
 
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rclpy.node import Node
@@ -24,8 +27,27 @@ from rclpy.node import Node
 MATCHED_SUBSCRIPTIONS = "matched_subscriptions:"
 MATCHED_PUBLISHERS = "matched_publishers:"
 
-#: Endpoints every node has that carry no pipeline data.
+#: Endpoints every node has that carry none of the graph's data.
 _INFRASTRUCTURE_TOPICS = ("/rosout", "/parameter_events", "/diagnostics")
+
+
+class EndpointCounts(Protocol):
+    """The graph queries :func:`missing_links` makes of the observing process (an rclpy ``Node``'s)."""
+
+    def count_subscribers(self, topic_name: str, /) -> int: ...
+
+    def count_publishers(self, topic_name: str, /) -> int: ...
+
+
+class EndpointOwners(Protocol):
+    """The graph queries :func:`node_endpoint_gids` makes of the observing process (an rclpy
+    ``Node``'s); each endpoint info has ``node_name``, ``node_namespace`` and ``endpoint_gid``."""
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]: ...
+
+    def get_publishers_info_by_topic(self, topic_name: str, /) -> Sequence[Any]: ...
+
+    def get_subscriptions_info_by_topic(self, topic_name: str, /) -> Sequence[Any]: ...
 
 
 def own_link_counts(node: Node) -> dict[str, int]:
@@ -57,7 +79,7 @@ def parse_link_counts(status: DiagnosticStatus) -> dict[str, int]:
     return counts
 
 
-def missing_links(observer: Node, reports: dict[str, dict[str, int]]) -> list[str]:
+def missing_links(observer: EndpointCounts, reports: dict[str, dict[str, int]]) -> list[str]:
     """Links not yet matched, one readable line each; empty once the graph is connected.
 
     ``reports`` maps a node name to its :func:`own_link_counts`. Each count is compared with the
@@ -81,13 +103,17 @@ def missing_links(observer: Node, reports: dict[str, dict[str, int]]) -> list[st
 
 
 #: The node name rmw reports for an endpoint whose process has not yet told this one which node
-#: owns it (``ros_discovery_info`` arrives after the endpoint itself: about a second later with the
-#: graph's Fast DDS profile, 3 s without).
+#: owns it: ``ros_discovery_info`` arrives after the endpoint itself, sooner with the graph's Fast
+#: DDS profile (``config/fastdds_profile.xml`` says why) than with Fast DDS's defaults.
 UNKNOWN_NODE_NAME = "_NODE_NAME_UNKNOWN_"
 
 
 def node_endpoint_gids(
-    observer: Node, node_name: str, namespace: str, topics: Iterable[str] | None = None, include_unnamed: bool = False
+    observer: EndpointOwners,
+    node_name: str,
+    namespace: str,
+    topics: Iterable[str] | None = None,
+    include_unnamed: bool = False,
 ) -> dict[str, set[bytes]]:
     """For each data topic of the node ``namespace/node_name``, the ids of its endpoints that
     ``observer`` can see: a restarted process is told apart from the dead one by new ids (a killed

@@ -1,0 +1,159 @@
+"""The local detector: the P2 model on square ROIs of one frame, all ROIs in ONE onnxruntime batch.
+
+Its work on a frame is split in two public halves, so that the ROS graph can run them in
+different processes and still give the boxes of the offline GL-DT system:
+
+- :meth:`LocalDetector.crop` cuts one ROI out of the full frame (run by ``frame_pair_buffer``,
+  the only node that holds full frames);
+- :meth:`LocalDetector.detect_crops` runs the model on the crops as one batch and maps the boxes
+  back to full-frame pixels (run by the ``local_detector`` node).
+
+:meth:`LocalDetector.detect_rois` is the two in one call, for the offline system and the
+benchmarks. Boxes are full-frame pixels with MOTChallenge class codes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from gldt_core.detect.postprocess import (
+    PAD_VALUE,
+    decode_output,
+    drop_degenerate,
+    ensure_bgr,
+    letterbox,
+    to_blob,
+    unletterbox,
+)
+from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
+from gldt_core.detect.shipped import DEFAULT_LOCAL_MODEL
+
+LOCAL_INPUT_EXPECTATION = "one input (N, 3, S, S) float32 RGB ROI crops"
+
+
+class LocalDetector(OnnxDetector):
+    """The local P2 detector on square ROIs of one frame, run as ONE onnxruntime batch."""
+
+    EXPECTATION = LOCAL_INPUT_EXPECTATION
+
+    def __init__(
+        self,
+        model_path: Path | str | None = None,
+        providers: Sequence[str] = ("CPUExecutionProvider",),
+        score_threshold: float = 0.25,
+        num_threads: int | None = None,
+        iou_threshold: float = 0.5,
+        max_detections_per_roi: int = 100,
+        classes: Sequence[int] | None = None,
+    ):
+        inputs = self._open(model_path, DEFAULT_LOCAL_MODEL, providers, num_threads, score_threshold, iou_threshold)
+        if len(inputs) != 1:
+            raise DetectorConfigError(
+                f"{self.model_path}: has {len(inputs)} inputs; "
+                "a local detector needs one (N, 3, S, S) batch of ROI crops"
+            )
+        model_input = inputs[0]
+        check_image_input(self.model_path, model_input, "(N, 3, S, S) float32 RGB ROI crops with a fixed square size S")
+        h, w = model_input.shape[2], model_input.shape[3]
+        if not (isinstance(h, int) and isinstance(w, int) and h == w):
+            raise DetectorConfigError(
+                f"{self.model_path}: input {model_input.name!r} has shape {model_input.shape}; "
+                "expected (N, 3, S, S) with a fixed square S"
+            )
+        self.input_name = model_input.name
+        self.input_side = int(h)
+        self._read_classes(classes)
+        self.max_detections_per_roi = int(max_detections_per_roi)
+
+    @staticmethod
+    def _check_rois(rois: np.ndarray, frame_w: int, frame_h: int) -> np.ndarray:
+        """``rois`` as an ``(R, 4)`` int array of ``[x1, y1, x2, y2]``; ValueError for ROIs that are
+        malformed, empty or inverted, or wholly outside the ``frame_w`` x ``frame_h`` frame."""
+        rois = np.asarray(rois)
+        if rois.size == 0:
+            return np.zeros((0, 4), dtype=np.int64)
+        if rois.ndim != 2 or rois.shape[1] != 4:
+            raise ValueError(f"rois must be an (R, 4) array of [x1, y1, x2, y2], got shape {rois.shape}")
+        if not np.all(np.isfinite(rois)):
+            raise ValueError("rois contain NaN or infinite values")
+        rois = np.round(rois).astype(np.int64)
+        bad = (rois[:, 2] <= rois[:, 0]) | (rois[:, 3] <= rois[:, 1])
+        if bad.any():
+            raise ValueError(f"roi {int(np.flatnonzero(bad)[0])} is empty or inverted: {rois[bad][0].tolist()}")
+        outside = (rois[:, 2] <= 0) | (rois[:, 3] <= 0) | (rois[:, 0] >= frame_w) | (rois[:, 1] >= frame_h)
+        if outside.any():
+            raise ValueError(
+                f"roi {int(np.flatnonzero(outside)[0])} {rois[outside][0].tolist()} "
+                f"lies outside the {frame_w}x{frame_h} frame"
+            )
+        return rois
+
+    @staticmethod
+    def crop(frame: np.ndarray, roi: np.ndarray) -> np.ndarray:
+        """First half of the split: the ROI's pixels; parts outside the frame are filled with the
+        letterbox grey."""
+        h, w = frame.shape[:2]
+        x1, y1, x2, y2 = (int(v) for v in roi)
+        out = np.full((y2 - y1, x2 - x1, 3), PAD_VALUE, dtype=np.uint8)
+        sx1, sy1, sx2, sy2 = max(x1, 0), max(y1, 0), min(x2, w), min(y2, h)
+        out[sy1 - y1 : sy2 - y1, sx1 - x1 : sx2 - x1] = frame[sy1:sy2, sx1:sx2]
+        return out
+
+    def detect_crops(
+        self, crops: Sequence[np.ndarray], rois: np.ndarray, frame_width: int, frame_height: int
+    ) -> np.ndarray:
+        """Second half of the split: the model on the ROI crops (:meth:`crop`) as one batch.
+
+        Returns ``(N, 7)`` float32 ``[x1, y1, x2, y2, score, class_id, roi_index]`` in pixels of
+        the ``frame_width`` x ``frame_height`` frame the crops were cut from.
+        """
+        rois = np.asarray(rois, dtype=np.int64).reshape(-1, 4)
+        if len(crops) != len(rois):
+            raise ValueError(f"{len(crops)} crops but {len(rois)} ROIs")
+        if len(rois) == 0:
+            return np.zeros((0, 7), dtype=np.float32)
+        side = self.input_side
+        inputs, mappings = [], []
+        for crop, roi in zip(crops, rois):
+            expected = (int(roi[3] - roi[1]), int(roi[2] - roi[0]))
+            if crop.shape[:2] != expected:
+                raise ValueError(f"crop of shape {crop.shape[:2]} does not match its ROI {roi.tolist()} ({expected})")
+            image, mapping = letterbox(ensure_bgr(crop, "ROI crop"), side, side)
+            inputs.append(image)
+            mappings.append(mapping)
+        (output,) = self.session.run(None, {self.input_name: to_blob(inputs)})
+        results = []
+        for index, (out, mapping, roi) in enumerate(zip(output, mappings, rois)):
+            detections = decode_output(
+                out,
+                self.score_threshold,
+                self.iou_threshold,
+                self.max_detections_per_roi,
+                box_scale=(side, side),
+                channels=self.class_channels,
+            )
+            if not len(detections):
+                continue
+            detections = unletterbox(detections, mapping, int(roi[2] - roi[0]), int(roi[3] - roi[1]))
+            detections[:, [0, 2]] += roi[0]
+            detections[:, [1, 3]] += roi[1]
+            detections[:, [0, 2]] = detections[:, [0, 2]].clip(0, frame_width)
+            detections[:, [1, 3]] = detections[:, [1, 3]].clip(0, frame_height)
+            detections = self._label(drop_degenerate(detections))  # boxes in the padding of ROIs that stick out
+            roi_column = np.full((len(detections), 1), index, dtype=np.float32)
+            results.append(np.concatenate((detections, roi_column), 1))
+        if not results:
+            return np.zeros((0, 7), dtype=np.float32)
+        return np.concatenate(results).astype(np.float32)
+
+    def detect_rois(self, frame_bgr: np.ndarray, rois: np.ndarray) -> np.ndarray:
+        """``(N, 7)`` float32 ``[x1, y1, x2, y2, score, class_id, roi_index]`` in full-frame pixels."""
+        frame = ensure_bgr(frame_bgr, "frame")
+        h, w = frame.shape[:2]
+        rois = self._check_rois(rois, w, h)
+        if len(rois) == 0:
+            return np.zeros((0, 7), dtype=np.float32)
+        return self.detect_crops([self.crop(frame, roi) for roi in rois], rois, w, h)

@@ -1,0 +1,38 @@
+"""Raw CDR messages: what can be read from their bytes without deserialising them.
+
+A player and a recorder handle messages as the CDR bytes :mod:`gldt_core.io.mcap_file` reads and
+writes; deserialising a full image only to learn its stamp would cost a copy of every frame.
+"""
+
+from __future__ import annotations
+
+import struct
+
+#: Bytes before ``header.stamp`` in a CDR message: the 4-byte encapsulation header (its second
+#: byte says the byte order).
+ENCAPSULATION_SIZE = 4
+_LITTLE_ENDIAN_KINDS = (0x01, 0x03)  # CDR_LE, PL_CDR_LE
+
+
+def _stamp_format(cdr: bytes) -> str:
+    """The ``struct`` format of ``header.stamp`` (``int32 sec, uint32 nanosec``) in this message's
+    byte order; ValueError when the message is too short to hold a header."""
+    if len(cdr) < ENCAPSULATION_SIZE + 8:
+        raise ValueError(f"CDR message of {len(cdr)} bytes is too short to hold a header")
+    return "<iI" if cdr[1] in _LITTLE_ENDIAN_KINDS else ">iI"
+
+
+def header_stamp_ns(cdr: bytes) -> int:
+    """``header.stamp`` [ns] of a CDR message whose first field is a ``std_msgs/Header`` (images,
+    camera_info, every ``gldt_msgs`` array)."""
+    seconds, nanoseconds = struct.unpack_from(_stamp_format(cdr), cdr, ENCAPSULATION_SIZE)
+    return seconds * 1_000_000_000 + nanoseconds
+
+
+def with_header_stamp(cdr: bytes, stamp_ns: int) -> bytes:
+    """Copy of such a message with ``header.stamp`` replaced, patched in the bytes (no
+    deserialisation of the image it may carry)."""
+    seconds, nanoseconds = divmod(int(stamp_ns), 1_000_000_000)
+    patched = bytearray(cdr)
+    struct.pack_into(_stamp_format(cdr), patched, ENCAPSULATION_SIZE, seconds, nanoseconds)
+    return bytes(patched)

@@ -1,0 +1,50 @@
+"""The GL-DT node graph as a whole: which nodes it has, and the configuration files shipped with it.
+
+Every place that starts, restarts, installs or lists the graph's nodes reads them from
+:data:`NODES`: the ``pipeline`` command (:mod:`gldt_ros.launcher.pipeline`) and its replay driver
+(:mod:`gldt_ros.launcher.replay`), the warm spare (:mod:`gldt_ros.runtime.spare`), the launch file
+(``launch/gldt.launch.py``), ``setup.py`` (one ``ros2 run`` executable per node), the benchmarks and
+the tests.
+
+This module imports nothing but the standard library, and ament's index only when asked for a
+file, so ``setup.py`` can load it by its path at build time, when neither rclpy nor the package
+itself can be imported.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+#: The ROS package the graph's executables, launch file and configuration are installed with.
+PACKAGE = "gldt_ros"
+
+#: The graph's nodes in start order: node name (also its executable's name) -> the module that
+#: defines it. Each module has ``create_node(cli_args)``, which builds the node in any process,
+#: and ``main()``, which runs it as a process of its own.
+NODES: dict[str, str] = {
+    "frame_pair_buffer": "gldt_ros.nodes.frame_pair_buffer",
+    "mode_scheduler": "gldt_ros.nodes.mode_scheduler",
+    "global_detector": "gldt_ros.nodes.global_detector",
+    "local_detector": "gldt_ros.nodes.local_detector",
+    "jptrack_tracker": "gldt_ros.nodes.jptrack_tracker",
+}
+
+#: The parameter file of every node, generated from :mod:`gldt_ros.interface.params`.
+PARAMS_FILE = "gldt.yaml"
+
+
+def shipped_config(name: str) -> Path:
+    """``share/gldt_ros/config/<name>`` of the installed package, or ``config/<name>`` of the
+    package's source folder where ament's index does not know the package (run from source)."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        share = Path(get_package_share_directory(PACKAGE))
+    except (ImportError, LookupError, OSError):  # no ament index, package not in it, AMENT_PREFIX_PATH unset
+        share = Path(__file__).resolve().parents[2]
+    return share / "config" / name
+
+
+def default_params_file() -> Path:
+    """The shipped parameter file (:data:`PARAMS_FILE`), which holds every parameter's default."""
+    return shipped_config(PARAMS_FILE)

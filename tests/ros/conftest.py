@@ -1,0 +1,34 @@
+"""Fixtures shared by the tests of the ROS package (``gldt_ros`` is imported only when one is used,
+so a checkout without the colcon workspace still collects, and skips, these tests)."""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import pytest
+
+ProcessMap = dict[str, subprocess.Popen[bytes]]
+
+
+@pytest.fixture
+def node_processes_of() -> Callable[[ProcessMap], Any]:
+    """Builds a ``gldt_ros.launcher.pipeline.NodeProcesses`` that supervises the given stand-in
+    processes (name -> process) instead of launching the graph's nodes, to test how it stops them."""
+    from gldt_ros.launcher.pipeline import NodeProcesses
+
+    def adopt(processes: ProcessMap) -> NodeProcesses:
+        children = object.__new__(NodeProcesses)
+        children.args = argparse.Namespace()
+        children.processes = processes
+        children.restarts = {name: 0 for name in processes}
+        children.supervising = True
+        children.spare = None
+        children._segments_due = None
+        children._lock = threading.Lock()
+        return children
+
+    return adopt
