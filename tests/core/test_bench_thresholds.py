@@ -101,3 +101,12 @@ def test_each_pair_reaches_detector_and_tracker():
     assert kept["gd_share"] < 1.0  # a stable track hands frames to the local detector
     table = format_table(rows)
     assert "det 0.1 / trk 0.15" in table and table.count("\n") == len(rows) + 1
+
+
+def test_only_rows_published_as_drones_count_as_false_drones() -> None:
+    from gldt_core.bench.thresholds import drone_track_rows
+
+    rows = np.full((5, 10), -1.0)
+    rows[:, 7] = [1, 2, 3, -1, 1]  # drone, bird, airplane, no evidence yet, drone
+    assert drone_track_rows(rows) == 3
+    assert drone_track_rows(np.zeros((0, 10))) == 0

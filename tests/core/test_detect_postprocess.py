@@ -123,11 +123,14 @@ def test_tiles_cover_the_frame_with_overlap() -> None:
     assert tile_rois(200, 100, 300).tolist() == [[0, 0, 300, 300]]
 
 
-def test_halmstad_split_is_disjoint_and_holds_out_one_in_five() -> None:
+def test_halmstad_split_is_disjoint_and_holds_out_two_in_five() -> None:
     names = [f"V_DRONE_{i:03d}" for i in range(10)] + [f"V_BIRD_{i:03d}" for i in range(5)]
     split = split_clips(names)
     assert set(split["train"]).isdisjoint(split["val"])
-    assert sorted(split["train"] + split["val"]) == sorted(names)
+    assert set(split["train"]).isdisjoint(split["val_b"])
+    assert set(split["val"]).isdisjoint(split["val_b"])
+    assert sorted(split["train"] + split["val"] + split["val_b"]) == sorted(names)
     assert split["val"] == ["V_DRONE_002", "V_DRONE_007", "V_BIRD_002"]
+    assert split["val_b"] == ["V_DRONE_004", "V_DRONE_009", "V_BIRD_004"]
     with pytest.raises(ValueError, match="not a Halmstad clip"):
         split_clips(["clip1"])

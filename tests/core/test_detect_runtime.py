@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from gldt_core.detect import DetectorConfigError, GlobalDetector, LocalDetector, shipped_model_path
+from gldt_core.detect.second_stage import GLOBAL_COLUMNS, LOCAL_COLUMNS
 from gldt_core.paths import halmstad_root
 
 HALMSTAD = halmstad_root()
@@ -28,7 +29,9 @@ def global_detector() -> GlobalDetector:
 
 @pytest.fixture(scope="module")
 def local_detector() -> LocalDetector:
-    return LocalDetector(score_threshold=0.0, num_threads=1)
+    # The model alone: ROI batching and mapping are the detector's (the second stage caps
+    # candidates over the whole batch; tests/core/test_detect_second_stage.py).
+    return LocalDetector(score_threshold=0.0, num_threads=1, second_stage=None)
 
 
 def test_shipped_models_exist_with_cards_and_fit_the_size_budget() -> None:
@@ -65,7 +68,7 @@ def test_global_detect_contract(global_detector: GlobalDetector) -> None:
     prev, cur = textured_frame(1920, 1080, 1), textured_frame(1920, 1080, 2)
     assert global_detector.input_size(1920, 1080) == (640, 384)
     dets = global_detector.detect(prev, cur)
-    assert dets.dtype == np.float32 and dets.ndim == 2 and dets.shape[1] == 6 and len(dets) > 0
+    assert dets.dtype == np.float32 and dets.ndim == 2 and dets.shape[1] == GLOBAL_COLUMNS and len(dets) > 0
     assert (
         (dets[:, 0] >= 0).all()
         and (dets[:, 2] <= 1920).all()
@@ -77,13 +80,16 @@ def test_global_detect_contract(global_detector: GlobalDetector) -> None:
     assert (np.diff(dets[:, 4]) <= 0).all()  # sorted by score
 
 
-def test_detectors_asked_about_some_classes_report_only_those(global_detector: GlobalDetector) -> None:
+def test_detectors_asked_about_some_classes_report_only_those() -> None:
     prev, cur = textured_frame(1920, 1080, 1), textured_frame(1920, 1080, 2)
-    every = global_detector.detect(prev, cur)
+    alone = {"score_threshold": 0.0, "num_threads": 1, "second_stage": None}
+    every = GlobalDetector(**alone).detect(prev, cur)
     assert len(np.unique(every[:, 5])) > 1  # at score 0 the model names several classes here
     for classes in ((1,), (2, 3)):
-        asked = GlobalDetector(score_threshold=0.0, num_threads=1, classes=classes).detect(prev, cur)
-        assert len(asked) and set(np.unique(asked[:, 5]).tolist()) <= set(map(float, classes))
+        for second_stage in (None, "beside"):
+            options = {**alone, "classes": classes, "second_stage": second_stage}
+            asked = GlobalDetector(**options).detect(prev, cur)
+            assert len(asked) and set(np.unique(asked[:, 5]).tolist()) <= set(map(float, classes))
     rois = np.array([[100, 100, 400, 400], [800, 300, 1100, 600]])
     local = LocalDetector(score_threshold=0.0, num_threads=1, classes=(1,)).detect_rois(cur, rois)
     assert len(local) and set(local[:, 5].tolist()) == {1.0}
@@ -130,7 +136,7 @@ def test_rois_map_back_to_full_frame(local_detector: LocalDetector) -> None:
     roi = np.array([[300, 150, 600, 450]])
     full = local_detector.detect_rois(frame, roi)
     alone = local_detector.detect_rois(np.ascontiguousarray(frame[150:450, 300:600]), np.array([[0, 0, 300, 300]]))
-    assert full.shape[1] == 7 and len(full) == len(alone) > 0
+    assert full.shape[1] == LOCAL_COLUMNS and len(full) == len(alone) > 0
     assert np.allclose(full[:, :4] - [300, 150, 300, 150], alone[:, :4], atol=1e-3)
     assert np.allclose(full[:, 4:6], alone[:, 4:6])
     assert (full[:, 6] == 0).all()
@@ -146,7 +152,7 @@ def test_rois_run_as_one_batch_equal_to_single_calls(local_detector: LocalDetect
         assert len(part) == len(single)
         assert np.allclose(part[:, :6], single[:, :6], atol=1e-3)
     assert (batched[:, 2] <= 1920).all() and (batched[:, 3] <= 1080).all()
-    assert local_detector.detect_rois(frame, np.zeros((0, 4))).shape == (0, 7)
+    assert local_detector.detect_rois(frame, np.zeros((0, 4))).shape == (0, LOCAL_COLUMNS)
 
 
 def test_bad_rois_are_rejected(local_detector: LocalDetector) -> None:

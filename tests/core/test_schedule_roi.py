@@ -303,3 +303,29 @@ def test_plan_rois_merges_like_the_plain_greedy_loop(seed: int) -> None:
     boxes = np.array([box_at(x, y, float(rng.uniform(6, 40))) for x, y in centres])
     layout = plan_rois(boxes, None, frame_size)
     assert sorted(layout.groups) == _reference_layout(boxes, frame_size, RoiParams())
+
+
+def test_table_one_pixel_sizes_scale_with_the_frame_height() -> None:
+    from gldt_core.schedule.roi import MIN_SCALED_ROI
+
+    params = RoiParams()
+    assert params.at_resolution(1080) is params
+    small = params.at_resolution(512)
+    assert small.roi_size == round(300 * 512 / 1080) and small.tau_distance == pytest.approx(700 * 512 / 1080)
+    assert (small.tau_overlap, small.tau_safe) == (params.tau_overlap, params.tau_safe)
+    assert params.at_resolution(200).roi_size == MIN_SCALED_ROI
+    assert RoiParams(reference_height=None).at_resolution(512).roi_size == 300
+    with pytest.raises(ValueError, match="reference_height"):
+        RoiParams(reference_height=0)
+
+
+def test_the_scheduler_plans_rois_of_the_scaled_size() -> None:
+    from gldt_core.schedule.scheduler import Mode, ModeScheduler, SchedulerConfig
+
+    scheduler = ModeScheduler(SchedulerConfig(n_global=1))
+    prediction = np.array([[300.0, 200, 330, 220, 1]])
+    plans = [scheduler.plan_frame(t / 30, (640, 512), prediction) for t in range(3)]
+    local = [p for p in plans if p.mode is Mode.LOCAL]
+    assert local, "the scheduler never went local"
+    side = local[-1].rois[0, 2] - local[-1].rois[0, 0]
+    assert abs(side - round(300 * 512 / 1080)) <= 1

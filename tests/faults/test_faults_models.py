@@ -109,12 +109,12 @@ def _one_line(error: BaseException) -> str:
 
 # --------------------------------------------------------------------------- the builders are right
 def test_tiny_valid_models_load_and_run(tmp_path: Path) -> None:
-    gd = GlobalDetector(global_model(tmp_path / "global.onnx"))
+    gd = GlobalDetector(global_model(tmp_path / "global.onnx"), second_stage=None)
     frame = np.zeros((120, 160, 3), np.uint8)
-    assert gd.detect(frame, frame).shape == (0, 6)
-    ld = LocalDetector(local_model(tmp_path / "local.onnx"))
+    assert gd.detect(frame, frame).shape == (0, 9)
+    ld = LocalDetector(local_model(tmp_path / "local.onnx"), second_stage=None)
     assert ld.input_side == 64
-    assert ld.detect_rois(frame, np.array([[0, 0, 64, 64], [50, 40, 150, 110]])).shape == (0, 7)
+    assert ld.detect_rois(frame, np.array([[0, 0, 64, 64], [50, 40, 150, 110]])).shape == (0, 10)
 
 
 # --------------------------------------------------------------------------- missing and truncated
@@ -304,7 +304,9 @@ def test_degenerate_boxes_from_a_real_model_never_stop_the_pipeline(tmp_path: Pa
     from gldt_core.system import GLDTSystem, SystemConfig
 
     good = [0.30, 0.30, 0.34, 0.34, 0.9, 0.0]  # a real target, 6x5 px in a 160x120 frame
-    detector = GlobalDetector(constant_global_model(tmp_path / "odd.onnx", [good, anchor]), score_threshold=0.5)
+    detector = GlobalDetector(
+        constant_global_model(tmp_path / "odd.onnx", [good, anchor]), score_threshold=0.5, second_stage=None
+    )
     pipeline = GLDTSystem(SystemConfig(scheduler=SchedulerConfig(local_enabled=False)), global_detector=detector)
     frame = np.zeros((120, 160, 3), np.uint8)
     for k in range(5):
@@ -317,7 +319,9 @@ def test_degenerate_boxes_from_a_real_model_never_stop_the_pipeline(tmp_path: Pa
 def test_a_nan_box_never_suppresses_a_valid_detection(tmp_path: Path) -> None:
     good = [0.30, 0.30, 0.34, 0.34, 0.90, 0.0]
     nan_box = [float("nan"), 0.30, 0.40, 0.40, 0.95, 0.0]
-    detector = GlobalDetector(constant_global_model(tmp_path / "nan_first.onnx", [good, nan_box]), score_threshold=0.5)
+    detector = GlobalDetector(
+        constant_global_model(tmp_path / "nan_first.onnx", [good, nan_box]), score_threshold=0.5, second_stage=None
+    )
     frame = np.zeros((120, 160, 3), np.uint8)
     dets = detector.detect(frame, frame)
     assert np.all(np.isfinite(dets))

@@ -46,6 +46,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--scenes", type=int, default=3, help="synthetic test scenes (default 3; 0 = none)")
     parser.add_argument("--frames", type=int, default=300, help="frames per synthetic scene (default 300)")
     parser.add_argument("--clips", type=int, default=4, help="Halmstad validation drone clips (default 4; 0 = none)")
+    parser.add_argument(
+        "--split",
+        default="val",
+        choices=("val", "val_b"),
+        help="which of the two disjoint validation splits the clips come from (default val)",
+    )
+    parser.add_argument(
+        "--other-clips",
+        type=int,
+        default=0,
+        help="bird/airplane clips of the split on which GD+LD+JPTrack's drone track rows are counted "
+        "(all false; default 0 = none)",
+    )
     parser.add_argument("--clip-frames", type=int, default=None, help="frames per clip (default: all)")
     parser.add_argument(
         "--halmstad",
@@ -126,15 +139,25 @@ def synthetic_sequences(scenes: int, frames: int) -> list[CachedSequence]:
     ]
 
 
-def halmstad_sequences(root: str, clips: int, clip_frames: int | None) -> list[CachedSequence]:
-    """The first ``clips`` validation ``V_DRONE`` clips (never trained on by the shipped models)."""
+def halmstad_sequences(
+    root: str, clips: int, clip_frames: int | None, split: str = "val", category: str = "drone"
+) -> list[CachedSequence]:
+    """The first ``clips`` validation clips of ``split`` (never trained on by the shipped models):
+    ``V_DRONE`` clips, or with ``category="other"`` the bird and airplane clips, alternating."""
     from pathlib import Path
 
     from gldt_core.eval.halmstad_split import halmstad_split
     from gldt_core.io.sources import open_source
 
     root_path = Path(root)
-    names = [n for n in halmstad_split(root_path)["val"] if n.startswith("V_DRONE")][:clips]
+    validation = halmstad_split(root_path)[split]
+    if category == "drone":
+        names = [n for n in validation if n.startswith("V_DRONE")][:clips]
+    else:
+        birds = [n for n in validation if n.startswith("V_BIRD")]
+        airplanes = [n for n in validation if n.startswith("V_AIRPLANE")]
+        mixed = [n for pair in zip(birds, airplanes) for n in pair] + birds[len(airplanes) :] + airplanes[len(birds) :]
+        names = mixed[:clips]
     out = []
     for name in names:
         source = open_source(root_path / "videos" / f"{name}.mp4", gt=root_path / "gt" / f"{name}.txt")
@@ -343,6 +366,27 @@ def _ratio_without_decode(ours: dict[str, Any], peer: dict[str, Any]) -> float |
     return peer_ms / ours_ms if ours_ms > 0 and peer_ms > 0 else None
 
 
+def false_drone_track_rate(sequences: list[CachedSequence], config: Any, detectors: tuple[Any, Any]) -> float:
+    """Track rows published as drones per frame by GD+LD+JPTrack on clips without drones."""
+    from gldt_core.bench.thresholds import drone_track_rows
+    from gldt_core.system.gldt_system import GLDTSystem, build_tracker
+    from gldt_core.system.runner import run_frames
+
+    system_config = config.with_changes(local_enabled=True, tracker="jptrack")
+    rows = frames = 0
+    for sequence in sequences:
+        system = GLDTSystem(
+            system_config,
+            global_detector=detectors[0],
+            local_detector=detectors[1],
+            tracker=build_tracker(system_config),
+        )
+        result = run_frames(system, sequence)
+        rows += drone_track_rows(result.rows)
+        frames += result.frames
+    return rows / frames if frames else float("nan")
+
+
 def handle_ablation(args: argparse.Namespace) -> int:
     """Run the ablation; prints one table per dataset."""
     import json
@@ -352,7 +396,7 @@ def handle_ablation(args: argparse.Namespace) -> int:
     from gldt_core.system.config import load_config
     from gldt_core.system.gldt_system import build_detectors
 
-    for name in ("scenes", "frames", "clips"):
+    for name in ("scenes", "frames", "clips", "other_clips"):
         if getattr(args, name) < 0:
             raise ValueError(f"--{name} must be >= 0, got {getattr(args, name)}")
     config = load_config(args.config)
@@ -372,16 +416,28 @@ def handle_ablation(args: argparse.Namespace) -> int:
         if not Path(args.halmstad, "videos").is_dir():
             print(f"halmstad: skipped, {args.halmstad}/videos not found")
         else:
-            sequences = halmstad_sequences(args.halmstad, args.clips, args.clip_frames)
+            sequences = halmstad_sequences(args.halmstad, args.clips, args.clip_frames, args.split)
             rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle)
-            report["halmstad_val"] = rows
+            report[f"halmstad_{args.split}"] = rows
             total = sum(len(s) for s in sequences)
             print(
                 format_table(
-                    f"Halmstad validation drone clips (640x512): {len(sequences)} clips, {total} frames{oracle_note}",
+                    f"Halmstad validation drone clips of {args.split} (640x512): {len(sequences)} clips, "
+                    f"{total} frames{oracle_note}",
                     rows,
                 )
             )
+    if args.other_clips and not args.oracle:
+        from gldt_core.paths import halmstad_root
+
+        root = args.halmstad or str(halmstad_root())
+        others = halmstad_sequences(root, args.other_clips, args.clip_frames, args.split, category="other")
+        rate = false_drone_track_rate(others, config, detectors)
+        report[f"false_drone_track_rows_per_frame_{args.split}"] = rate
+        print(
+            f"bird/airplane clips of {args.split} ({', '.join(s.name for s in others)}): GD+LD+JPTrack publishes "
+            f"{rate:.3f} drone track rows per frame (all false)"
+        )
     if args.json:
         path = Path(args.json)
         temporary = path.with_name(path.name + ".part")

@@ -1,10 +1,15 @@
-"""``gldt bench detection``: accuracy and latency of AM-YOLO, the same network without STFF, and the local model.
+"""``gldt bench detection``: accuracy and latency of the detectors, with and without the second stage.
+
+Rows: AM-YOLO and the local model each with the second stage (``+2nd``, the default the GL-DT
+system runs) and alone, and AM-YOLO's twin without STFF (alone).
 
 Accuracy (drone class, IoU-matched as in COCO; see :mod:`gldt_core.eval.detection_metrics`):
 
-* real: every ``--frame-step``-th frame of the held-out Halmstad drone clips
-  (:mod:`gldt_core.eval.halmstad_split`), plus false drone detections per frame on the
-  held-out bird/airplane clips at the operating threshold;
+* real: every ``--frame-step``-th frame of the held-out Halmstad drone clips of *both*
+  validation splits (``val`` and ``val_b`` of :mod:`gldt_core.eval.halmstad_split`, disjoint,
+  never trained on), so a figure can be shown not to belong to one split; precision and recall
+  at each model's operating threshold (its default unless ``--score-threshold``), and false
+  drone detections per frame on the held-out bird/airplane clips at that threshold;
 * synthetic: frames of the ``gldt_core.sim.presets`` "test" scenes (1080p), never trained on.
 
 The detectors are asked about drones only, as the GL-DT system asks them (``--all-classes``: about
@@ -39,7 +44,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--synthetic-scenes", type=int, default=6, help="synthetic test scenes (0 to skip)")
     parser.add_argument("--synthetic-frames", type=int, default=60, help="frames evaluated per synthetic scene")
     parser.add_argument(
-        "--score-threshold", type=float, default=0.25, help="operating threshold for false-positive rates"
+        "--score-threshold",
+        type=float,
+        default=None,
+        help="operating threshold for precision, recall and false drones (default: each model's own: "
+        "0.5 with the second stage, 0.25 without)",
+    )
+    parser.add_argument(
+        "--second-stage",
+        default="beside",
+        help="second-stage classifier for the +2nd rows: beside (next to each model), a path, or none (no +2nd rows)",
     )
     parser.add_argument("--global-model", default=None, help="AM-YOLO ONNX (default: shipped)")
     parser.add_argument("--nostff-model", default=None, help="no-STFF ablation ONNX (default: shipped)")
@@ -75,38 +89,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_run)
 
 
-def _global_detectors(args: argparse.Namespace, threshold: float) -> dict[str, GlobalDetector]:
-    from gldt_core.detect import GlobalDetector, shipped_model_path
+def _detectors(args: argparse.Namespace, threshold: float | None) -> dict[str, GlobalDetector | LocalDetector]:
+    """The rows of the table: each detector with the second stage (unless ``--second-stage none``) and alone."""
+    from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector, LocalDetector, shipped_model_path
 
-    common = _detector_options(args, threshold)
-    return {
-        "AM-YOLO": GlobalDetector(
-            args.global_model or shipped_model_path("global"), long_side=args.long_side, **common
-        ),
-        "no-STFF": GlobalDetector(
-            args.nostff_model or shipped_model_path("global_nostff"), long_side=args.long_side, **common
-        ),
-    }
-
-
-def _local_detector(args: argparse.Namespace, threshold: float) -> LocalDetector:
-    from gldt_core.detect import LocalDetector, shipped_model_path
-
-    return LocalDetector(args.local_model or shipped_model_path("local"), **_detector_options(args, threshold))
-
-
-def _detector_options(args: argparse.Namespace, threshold: float) -> dict[str, Any]:
-    from gldt_core.detect import DRONE_CLASS_ID
-
-    return {
+    common: dict[str, Any] = {
         "score_threshold": threshold,
         "num_threads": args.threads,
         "classes": None if args.all_classes else (DRONE_CLASS_ID,),
     }
+    second = None if args.second_stage == "none" else args.second_stage
+    global_model = args.global_model or shipped_model_path("global")
+    local_model = args.local_model or shipped_model_path("local")
+    detectors: dict[str, GlobalDetector | LocalDetector] = {}
+    if second is not None:
+        detectors["AM-YOLO+2nd"] = GlobalDetector(global_model, long_side=args.long_side, second_stage=second, **common)
+    detectors["AM-YOLO"] = GlobalDetector(global_model, long_side=args.long_side, second_stage=None, **common)
+    detectors["no-STFF"] = GlobalDetector(
+        args.nostff_model or shipped_model_path("global_nostff"), long_side=args.long_side, second_stage=None, **common
+    )
+    if second is not None:
+        detectors["local+2nd"] = LocalDetector(local_model, second_stage=second, **common)
+    detectors["local"] = LocalDetector(local_model, second_stage=None, **common)
+    return detectors
 
 
-def _detectors(args: argparse.Namespace, threshold: float) -> dict[str, GlobalDetector | LocalDetector]:
-    return {**_global_detectors(args, threshold), "local": _local_detector(args, threshold)}
+def _operating_threshold(args: argparse.Namespace, detector: GlobalDetector | LocalDetector) -> float:
+    """``--score-threshold``, else the detector's default (calibrated with a second stage)."""
+    from gldt_core.detect.second_stage import UNCALIBRATED_THRESHOLD, SecondStage
+
+    if args.score_threshold is not None:
+        return float(args.score_threshold)
+    return SecondStage.DEFAULT_THRESHOLD if detector.second_stage is not None else UNCALIBRATED_THRESHOLD
 
 
 def _drones(detections: list) -> list:
@@ -184,6 +198,19 @@ def _breakdown_line(dataset: str, model: str, errors: dict, threshold: float) ->
     )
 
 
+def _second_stage_call(stage: Any, frame: Any) -> Any:
+    """One call of the second stage on 10 candidates spread over ``frame`` (crops, model, calibration, NMS)."""
+    import functools
+
+    import numpy as np
+
+    rng = np.random.default_rng(1)
+    xy = rng.uniform(50, [frame.shape[1] - 80, frame.shape[0] - 80], size=(10, 2))
+    size = rng.uniform(10, 60, size=(10, 1))
+    candidates = np.column_stack([xy, xy + size, rng.uniform(0.01, 0.9, 10), np.ones(10)])
+    return functools.partial(stage.rescore, np.roll(frame, 2, axis=1), frame, candidates)
+
+
 def _latency(fn, runs: int) -> float:
     import time
 
@@ -239,9 +266,9 @@ def _run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from gldt_core.bench.latency import gd_stretch_call
-    from gldt_core.detect import DRONE_CLASS_ID
-    from gldt_core.eval.detection_metrics import detection_summary, error_breakdown, match
-    from gldt_core.eval.halmstad_split import halmstad_split
+    from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector
+    from gldt_core.eval.detection_metrics import detection_summary, error_breakdown, match, precision_recall_at
+    from gldt_core.eval.halmstad_split import VALIDATION_SPLITS, halmstad_split
 
     if args.frame_step < 1:
         raise ValueError(f"--frame-step must be >= 1, got {args.frame_step}")
@@ -252,32 +279,34 @@ def _run(args: argparse.Namespace) -> int:
     # Accuracy uses a low threshold so the PR curves span the whole range.
     detectors = _detectors(args, threshold=0.01)
     roi_side = int(detectors["local"].card.get("roi_side", 300))
-    report: dict = {"threshold": args.score_threshold, "datasets": {}}
+    thresholds = {name: _operating_threshold(args, detector) for name, detector in detectors.items()}
+    report: dict = {"operating_thresholds": thresholds, "datasets": {}}
 
     datasets: dict[str, tuple[list, list]] = {}
-    negatives: tuple[list, list] | None = None
+    negatives: dict[str, tuple[list, list]] = {}
     from gldt_core.paths import halmstad_root
 
     root = Path(args.real_root or halmstad_root())
     if (root / "videos").is_dir():
         split = halmstad_split(root)
-        drone = [c for c in split["val"] if c.startswith("V_DRONE")][: args.max_clips]
-        other = [c for c in split["val"] if not c.startswith("V_DRONE")]
-        if args.max_clips:
-            other = [c for c in other if c.startswith("V_BIRD")][: args.max_clips] + [
-                c for c in other if c.startswith("V_AIRPLANE")
+        for split_name in VALIDATION_SPLITS:
+            clips = split[split_name]
+            drone = [c for c in clips if c.startswith("V_DRONE")][: args.max_clips]
+            other = [c for c in clips if c.startswith("V_BIRD")][: args.max_clips] + [
+                c for c in clips if c.startswith("V_AIRPLANE")
             ][: args.max_clips]
-        datasets["real-val"] = _real_frames(root, drone, args.frame_step)
-        negatives = _real_frames(root, other, args.frame_step)
-        report["real_val_clips"] = drone + other
+            dname = f"real-{split_name.replace('_', '-')}"
+            datasets[dname] = _real_frames(root, drone, args.frame_step)
+            negatives[dname] = _real_frames(root, other, args.frame_step)
+            report[f"{dname}_clips"] = drone + other
     else:
         print(f"real clips not found under {root}: skipping the real-data rows")
     if args.synthetic_scenes > 0:
         datasets["synthetic-test"] = _synthetic_frames(args.synthetic_scenes, args.synthetic_frames)
 
     print(
-        f"{'dataset':16s} {'model':8s} {'frames':>6s} {'gt':>5s} "
-        f"{'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s}"
+        f"{'dataset':14s} {'model':11s} {'frames':>6s} {'gt':>5s} "
+        f"{'AP50':>6s} {'AP50:95':>7s} {'APsmall':>7s} {'PR-AUC':>6s} {'thresh':>6s} {'prec':>6s} {'recall':>6s}"
     )
     breakdowns: list[str] = []
     for dname, (pairs, gts) in datasets.items():
@@ -288,30 +317,48 @@ def _run(args: argparse.Namespace) -> int:
             dets = _drones(every_class)
             summary = detection_summary(dets, gts)
             curves[name] = match(dets, gts, 0.5)
+            precision, recall = precision_recall_at(curves[name], thresholds[name])
+            summary.update({"precision_at_threshold": precision, "recall_at_threshold": recall})
             report["datasets"][dname][name] = summary
-            errors = error_breakdown(every_class, gts, DRONE_CLASS_ID, args.score_threshold)
+            errors = error_breakdown(every_class, gts, DRONE_CLASS_ID, thresholds[name])
             report.setdefault("errors", {}).setdefault(dname, {})[name] = errors
-            breakdowns.append(_breakdown_line(dname, name, errors, args.score_threshold))
+            breakdowns.append(_breakdown_line(dname, name, errors, thresholds[name]))
             print(
-                f"{dname:16s} {name:8s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} "
-                f"{summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f}"
+                f"{dname:14s} {name:11s} {len(pairs):6d} {int(summary['num_gt']):5d} {summary['ap50']:6.3f} "
+                f"{summary['ap50_95']:7.3f} {summary['ap_small']:7.3f} {summary['pr_auc']:6.3f} "
+                f"{thresholds[name]:6.2f} {precision:6.3f} {recall:6.3f}"
             )
         _plot(curves, out / f"pr_{dname}.png", out / f"recall_confidence_{dname}.png", f"drone, {dname}")
         a, b = report["datasets"][dname]["AM-YOLO"]["ap50"], report["datasets"][dname]["no-STFF"]["ap50"]
-        print(f"{dname}: AM-YOLO - no-STFF AP50 margin {a - b:+.3f}")
+        line = f"{dname}: AM-YOLO - no-STFF AP50 margin {a - b:+.3f}"
+        if "AM-YOLO+2nd" in detectors:
+            line += f"; the second stage adds {report['datasets'][dname]['AM-YOLO+2nd']['ap50'] - a:+.3f} to AM-YOLO"
+        print(line)
+    real = [d for d in datasets if d.startswith("real-")]
+    if len(real) == 2:
+        print("the two disjoint validation splits (AP50; gap; worst):")
+        for name in detectors:
+            values = [report["datasets"][d][name]["ap50"] for d in real]
+            print(
+                f"  {name:11s} {values[0]:.3f} / {values[1]:.3f}; "
+                f"gap {abs(values[0] - values[1]):.3f}; worst {min(values):.3f}"
+            )
     if breakdowns:
         print("where the drones went (IoU 0.5; every reported box) and the false drones at the operating threshold:")
         print("\n".join(breakdowns))
 
-    if negatives is not None and negatives[0]:
-        report["false_drones_per_frame"] = {}
+    report["false_drones_per_frame"] = {}
+    for dname, (pairs, _) in negatives.items():
+        if not pairs:
+            continue
+        report["false_drones_per_frame"][dname] = {}
         for name, detector in detectors.items():
-            dets = _drones(_run_detector(detector, negatives[0], roi_side))
-            rate = float(np.mean([(d[:, 4] >= args.score_threshold).sum() for d in dets]))
-            report["false_drones_per_frame"][name] = rate
+            dets = _drones(_run_detector(detector, pairs, roi_side))
+            rate = float(np.mean([(d[:, 4] >= thresholds[name]).sum() for d in dets]))
+            report["false_drones_per_frame"][dname][name] = rate
             print(
-                f"bird/airplane clips ({len(dets)} frames): {name:8s} false drone detections per frame "
-                f"at score >= {args.score_threshold}: {rate:.3f}"
+                f"bird/airplane clips of {dname} ({len(dets)} frames): {name:11s} false drone detections per frame "
+                f"at score >= {thresholds[name]:.2f}: {rate:.3f}"
             )
 
     frame_1080 = np.full((1080, 1920, 3), 128, np.uint8)
@@ -324,21 +371,27 @@ def _run(args: argparse.Namespace) -> int:
     report["latency_ms"] = {}
     for threads in args.latency_threads:
         args_t = argparse.Namespace(**{**vars(args), "threads": threads})
-        timed = _global_detectors(args_t, threshold=args.score_threshold)
-        timed_local = _local_detector(args_t, threshold=args.score_threshold)
+        timed = _detectors(args_t, threshold=None)
         latency = {
-            "AM-YOLO 1080p frame": _latency(gd_stretch_call(timed["AM-YOLO"], stretch), args.latency_runs),
-            "no-STFF 1080p frame": _latency(gd_stretch_call(timed["no-STFF"], stretch), args.latency_runs),
-            "local 4 ROIs": _latency(functools.partial(timed_local.detect_rois, frame_1080, rois), args.latency_runs),
+            f"{name} {'1080p frame' if isinstance(detector, GlobalDetector) else '4 ROIs'}": _latency(
+                gd_stretch_call(detector, stretch)
+                if isinstance(detector, GlobalDetector)
+                else functools.partial(detector.detect_rois, frame_1080, rois),
+                args.latency_runs,
+            )
+            for name, detector in timed.items()
         }
+        stage = next((d.second_stage for d in timed.values() if d.second_stage is not None), None)
+        if stage is not None:
+            latency["second stage, 10 candidates"] = _latency(_second_stage_call(stage, frame_1080), args.latency_runs)
         report["latency_ms"][f"threads={threads}"] = latency
-        in_w, in_h = timed["AM-YOLO"].input_size(1920, 1080)
+        in_w, in_h = timed["AM-YOLO"].input_size(1920, 1080)  # type: ignore[union-attr]
         print(
             f"latency (median of {args.latency_runs}, onnxruntime threads={threads}; "
-            f"global input {in_w}x{in_h}, local input {timed_local.input_side}):"
+            f"global input {in_w}x{in_h}, local input {timed['local'].input_side}):"  # type: ignore[union-attr]
         )
         for key, value in latency.items():
-            print(f"  {key:22s} {value:7.1f} ms")
+            print(f"  {key:30s} {value:7.1f} ms")
         print(
             f"  ratio AM-YOLO / no-STFF: {latency['AM-YOLO 1080p frame'] / latency['no-STFF 1080p frame']:.2f}; "
             f"local 4 ROIs / AM-YOLO frame: {latency['local 4 ROIs'] / latency['AM-YOLO 1080p frame']:.2f}"
@@ -353,23 +406,34 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _update_cards(detectors: dict, report: dict, args: argparse.Namespace) -> None:
-    """Record this run's numbers in each model's sidecar JSON card (atomically)."""
+    """Record this run's numbers in each model's sidecar JSON card (atomically); a ``+2nd`` row goes
+    into its detector's card under ``with_second_stage``."""
     import json
     import shlex
     import sys
 
-    keys = {"AM-YOLO": "AM-YOLO 1080p frame", "no-STFF": "no-STFF 1080p frame", "local": "local 4 ROIs"}
+    def figures(name: str) -> dict:
+        return {
+            "datasets": {d: v[name] for d, v in report["datasets"].items()},
+            "false_drones_per_frame_on_bird_airplane_val_clips": {
+                d: v.get(name) for d, v in report.get("false_drones_per_frame", {}).items()
+            },
+            "operating_threshold": report["operating_thresholds"][name],
+            "latency_ms": {t: v[k] for t, v in report["latency_ms"].items() for k in v if k.startswith(name + " ")},
+        }
+
     for name, detector in detectors.items():
+        if name.endswith("+2nd"):
+            continue
         card_path = detector.model_path.with_suffix(".json")
         card = json.loads(card_path.read_text()) if card_path.is_file() else {}
         card["benchmark"] = {
             "command": "gldt " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
-            "datasets": {d: v[name] for d, v in report["datasets"].items()},
-            "false_drones_per_frame_on_bird_airplane_val_clips": report.get("false_drones_per_frame", {}).get(name),
-            "operating_threshold": report["threshold"],
-            "latency_ms": {t: v[keys[name]] for t, v in report["latency_ms"].items()},
+            **figures(name),
             "latency_note": "median wall time incl. pre/post-processing, onnxruntime CPU, shared 2-core machine",
         }
+        if name + "+2nd" in detectors:
+            card["benchmark"]["with_second_stage"] = figures(name + "+2nd")
         tmp = card_path.with_name(card_path.name + ".tmp")
         tmp.write_text(json.dumps(card, indent=2, sort_keys=True) + "\n")
         tmp.replace(card_path)

@@ -18,7 +18,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--out", required=True, help="output MOTChallenge detection file")
     parser.add_argument("--detector", choices=("global", "local"), default="global")
     parser.add_argument("--model", default=None, help="ONNX model (default: the shipped one)")
-    parser.add_argument("--score-threshold", type=float, default=0.25)
+    parser.add_argument(
+        "--score-threshold",
+        type=float,
+        default=None,
+        help="lowest score written (default: 0.5 of the calibrated drone probability with the second stage, "
+        "0.25 without)",
+    )
+    parser.add_argument(
+        "--second-stage",
+        default="beside",
+        help="crop classifier that re-scores and re-boxes the candidates: 'beside' (second_stage.onnx next to the "
+        "model, the default), a path, or 'none'",
+    )
     parser.add_argument(
         "--classes", choices=("drone", "all"), default="drone", help="write drone boxes only (default) or every class"
     )
@@ -47,6 +59,7 @@ def _run(args: argparse.Namespace) -> int:
         score_threshold=args.score_threshold,
         num_threads=args.threads,
         classes=classes,
+        second_stage=None if args.second_stage == "none" else args.second_stage,
     )
     frames = tqdm(
         iter_video_frames(args.video), desc=f"detect ({args.detector})", unit="frame", disable=args.no_progress

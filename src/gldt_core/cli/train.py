@@ -1,4 +1,4 @@
-"""``gldt train global|local --config CFG``: train a detector (needs the optional torch extra)."""
+"""``gldt train global|local|second-stage --config CFG``: train a detector or the second stage (needs torch)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,16 @@ import argparse
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "train",
-        help="train the global (AM-YOLO) or local detector from a YAML config (needs torch)",
-        description="Train a detector. Writes config.yaml, log.csv, curves.png, last.pt and best.pt "
-        "to the run directory.",
+        help="train the global (AM-YOLO) or local detector, or the second stage, from a YAML config (needs torch)",
+        description="Train a detector (writes config.yaml, log.csv, curves.png, last.pt and best.pt to the run "
+        "directory) or the second stage (last.pt after every epoch, then second_stage.onnx and its card).",
     )
-    parser.add_argument("task", choices=("global", "local"), help="which detector to train")
+    parser.add_argument("task", choices=("global", "local", "second-stage"), help="which model to train")
+    parser.add_argument(
+        "--resume",
+        default=None,
+        help="second stage: continue from this last.pt (model, optimiser, schedule, data order, time spent)",
+    )
     parser.add_argument("--config", required=True, help="training YAML (see src/gldt_core/configs/)")
     parser.add_argument("--out", default=None, help="run directory (default: out_dir from the config)")
     parser.add_argument("--seed", type=int, default=None, help="override the config's seed")
@@ -36,6 +41,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _run(args: argparse.Namespace) -> int:
+    if args.task == "second-stage":
+        return _run_second_stage(args)
+    if args.resume is not None:
+        raise ValueError("--resume is for the second stage; the detectors restart from their config")
     try:
         from gldt_core.training.train import load_config, train
     except ImportError as error:  # torch is an optional extra
@@ -56,4 +65,25 @@ def _run(args: argparse.Namespace) -> int:
         config["train"]["max_wall_s"] = args.max_wall_s
     best = train(args.task, config, out_dir=args.out, progress=not args.no_progress)
     print(f"best checkpoint: {best}")
+    return 0
+
+
+def _run_second_stage(args: argparse.Namespace) -> int:
+    try:
+        from gldt_core.training.second_stage import load_config, train_second_stage
+    except ImportError as error:  # torch is an optional extra
+        raise ValueError(f"training needs torch (pip install torch==2.13.0 onnx): {error}") from error
+
+    config = load_config(args.config)
+    if args.seed is not None:
+        config["seed"] = args.seed
+    if args.epochs is not None:
+        config["train"]["epochs"] = args.epochs
+    if args.max_wall_s is not None:
+        config["train"]["max_wall_s"] = args.max_wall_s
+    for name in ("steps_per_epoch", "device", "workers"):
+        if getattr(args, name.replace("-", "_")) is not None:
+            raise ValueError(f"--{name.replace('_', '-')} applies to the detectors, not the second stage")
+    result = train_second_stage(config, out_dir=args.out, resume=args.resume, progress=not args.no_progress)
+    print(f"second stage: {result}")
     return 0

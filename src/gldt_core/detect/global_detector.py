@@ -11,6 +11,10 @@ different processes and still give the boxes of the offline GL-DT system:
 :meth:`GlobalDetector.detect` and :meth:`GlobalDetector.detect_pair` are these two halves in one
 call, for the offline system and the benchmarks. Boxes are full-frame pixels with MOTChallenge
 class codes (1 drone, 2 bird, 3 airplane), so the tracker never sees network-input coordinates.
+
+The second stage (:mod:`gldt_core.detect.second_stage`, by default ``second_stage.onnx`` beside
+the model) re-scores and re-boxes the model's candidates on the same letterboxed pair, so both
+halves of the split give the same rows wherever they run.
 """
 
 from __future__ import annotations
@@ -31,6 +35,14 @@ from gldt_core.detect.postprocess import (
     rect_input_size,
     to_blob,
     unletterbox,
+)
+from gldt_core.detect.second_stage import (
+    BESIDE,
+    UNCALIBRATED_THRESHOLD,
+    SecondStage,
+    SecondStageChoice,
+    load_second_stage,
+    one_hot_probabilities,
 )
 from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
 from gldt_core.detect.shipped import DEFAULT_GLOBAL_MODEL
@@ -69,7 +81,7 @@ class GlobalDetector(OnnxDetector):
         self,
         model_path: Path | str | None = None,
         providers: Sequence[str] = ("CPUExecutionProvider",),
-        score_threshold: float = 0.25,
+        score_threshold: float | None = None,
         num_threads: int | None = None,
         iou_threshold: float = 0.5,
         long_side: int | None = None,
@@ -77,6 +89,7 @@ class GlobalDetector(OnnxDetector):
         optimize_graph: bool = True,
         classes: Sequence[int] | None = None,
         feature_reuse: bool | None = None,
+        second_stage: SecondStageChoice = BESIDE,
     ):
         if feature_reuse and not optimize_graph:
             raise DetectorConfigError(
@@ -92,6 +105,8 @@ class GlobalDetector(OnnxDetector):
             and features_path(path).is_file()
             and reuse_path(path).is_file()
         )
+        if score_threshold is None:
+            score_threshold = UNCALIBRATED_THRESHOLD if second_stage is None else SecondStage.DEFAULT_THRESHOLD
         inputs = self._open(
             model_path,
             DEFAULT_GLOBAL_MODEL,
@@ -123,6 +138,15 @@ class GlobalDetector(OnnxDetector):
             )
         self._read_classes(classes)
         self.max_detections = int(max_detections)
+        # A detector opened for its geometry only (optimize_graph=False) never scores boxes.
+        self.second_stage = load_second_stage(
+            second_stage if optimize_graph else None,
+            self.model_path,
+            providers=providers,
+            score_threshold=self.score_threshold,
+            classes=self.classes,
+        )
+        self.decode_threshold = SecondStage.CANDIDATE_SCORE if self.second_stage else self.score_threshold
         self.feature_reuse: FeatureReuse | None = None
         if split_first or (optimize_graph and feature_reuse):  # required but absent: a clear error
             self.feature_reuse = load_feature_reuse(self.model_path, providers, num_threads, feature_reuse)
@@ -157,8 +181,10 @@ class GlobalDetector(OnnxDetector):
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Second half of the split: the model on an already letterboxed pair (:meth:`prepare`).
 
-        Returns ``(N, 6)`` float32 ``[x1, y1, x2, y2, score, class_id]`` in full-frame pixels
-        (``mapping`` is the current frame's, ``frame_width`` x ``frame_height`` its size), and the
+        Returns ``(N, 9)`` float32 ``[x1, y1, x2, y2, score, class_id, p_drone, p_bird, p_airplane]``
+        in full-frame pixels (``mapping`` is the current frame's, ``frame_width`` x
+        ``frame_height`` its size; the class probabilities are the second stage's, else one-hot
+        from the model's label), and the
         current frame's features for the next GD frame. ``previous_features`` must have been
         returned for ``previous_input`` (the caller keys them by frame); ones of the wrong shape
         are ignored and recomputed. The features returned are None when the detector has no
@@ -181,19 +207,25 @@ class GlobalDetector(OnnxDetector):
             (output,) = self.session.run(None, feed)
         else:
             (output,) = self.session.run(None, {self.input_names[0]: to_blob([current_input])})
-        detections = decode_output(
-            output[0],
-            self.score_threshold,
-            self.iou_threshold,
-            self.max_detections,
-            box_scale=(input_w, input_h),
-            channels=self.class_channels,
+        detections = self._label(
+            decode_output(
+                output[0],
+                self.decode_threshold,
+                self.iou_threshold,
+                self.max_detections,
+                box_scale=(input_w, input_h),
+                channels=self.class_channels,
+            )
         )
+        if self.second_stage is not None:
+            detections = self.second_stage.rescore(previous_input, current_input, detections)
+        else:
+            detections = np.concatenate([detections, one_hot_probabilities(detections[:, 5])], axis=1)
         detections = drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
-        return self._label(detections).astype(np.float32), current_features
+        return detections.astype(np.float32), current_features
 
     def detect(self, previous_bgr: np.ndarray | None, current_bgr: np.ndarray) -> np.ndarray:
-        """``(N, 6)`` float32 ``[x1, y1, x2, y2, score, class_id]`` in full-frame pixels.
+        """``(N, 9)`` float32 ``[x1, y1, x2, y2, score, class_id, p_drone, p_bird, p_airplane]`` in full-frame pixels.
 
         ``previous_bgr`` may be None on the first frame (the current frame is used for both).
         Grayscale frames are converted to BGR; frames of different sizes are rejected.

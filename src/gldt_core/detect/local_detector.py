@@ -10,6 +10,10 @@ different processes and still give the boxes of the offline GL-DT system:
 
 :meth:`LocalDetector.detect_rois` is the two in one call, for the offline system and the
 benchmarks. Boxes are full-frame pixels with MOTChallenge class codes.
+
+The second stage (:mod:`gldt_core.detect.second_stage`) re-scores the candidates on the ROI crops
+of the current and the previous frame, so both halves of the split give the same rows wherever
+they run.
 """
 
 from __future__ import annotations
@@ -28,6 +32,16 @@ from gldt_core.detect.postprocess import (
     to_blob,
     unletterbox,
 )
+from gldt_core.detect.second_stage import (
+    BESIDE,
+    LOCAL_COLUMNS,
+    PROBABILITY_COLUMNS,
+    UNCALIBRATED_THRESHOLD,
+    SecondStage,
+    SecondStageChoice,
+    load_second_stage,
+    one_hot_probabilities,
+)
 from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
 from gldt_core.detect.shipped import DEFAULT_LOCAL_MODEL
 
@@ -43,12 +57,15 @@ class LocalDetector(OnnxDetector):
         self,
         model_path: Path | str | None = None,
         providers: Sequence[str] = ("CPUExecutionProvider",),
-        score_threshold: float = 0.25,
+        score_threshold: float | None = None,
         num_threads: int | None = None,
         iou_threshold: float = 0.5,
         max_detections_per_roi: int = 100,
         classes: Sequence[int] | None = None,
+        second_stage: SecondStageChoice = BESIDE,
     ):
+        if score_threshold is None:
+            score_threshold = UNCALIBRATED_THRESHOLD if second_stage is None else SecondStage.DEFAULT_THRESHOLD
         inputs = self._open(model_path, DEFAULT_LOCAL_MODEL, providers, num_threads, score_threshold, iou_threshold)
         if len(inputs) != 1:
             raise DetectorConfigError(
@@ -67,6 +84,14 @@ class LocalDetector(OnnxDetector):
         self.input_side = int(h)
         self._read_classes(classes)
         self.max_detections_per_roi = int(max_detections_per_roi)
+        self.second_stage = load_second_stage(
+            second_stage,
+            self.model_path,
+            providers=providers,
+            score_threshold=self.score_threshold,
+            classes=self.classes,
+        )
+        self.decode_threshold = SecondStage.CANDIDATE_SCORE if self.second_stage else self.score_threshold
 
     @staticmethod
     def _check_rois(rois: np.ndarray, frame_w: int, frame_h: int) -> np.ndarray:
@@ -103,57 +128,88 @@ class LocalDetector(OnnxDetector):
         return out
 
     def detect_crops(
-        self, crops: Sequence[np.ndarray], rois: np.ndarray, frame_width: int, frame_height: int
+        self,
+        crops: Sequence[np.ndarray],
+        rois: np.ndarray,
+        frame_width: int,
+        frame_height: int,
+        previous_crops: Sequence[np.ndarray] | None = None,
     ) -> np.ndarray:
         """Second half of the split: the model on the ROI crops (:meth:`crop`) as one batch.
 
-        Returns ``(N, 7)`` float32 ``[x1, y1, x2, y2, score, class_id, roi_index]`` in pixels of
-        the ``frame_width`` x ``frame_height`` frame the crops were cut from.
+        Returns ``(N, 10)`` float32 ``[x1, y1, x2, y2, score, class_id, roi_index, p_drone, p_bird,
+        p_airplane]`` in pixels of the ``frame_width`` x ``frame_height`` frame the crops were cut
+        from. ``previous_crops`` (the same ROIs cut from the previous frame; None: the crops
+        themselves) let the second stage see motion.
         """
         rois = np.asarray(rois, dtype=np.int64).reshape(-1, 4)
         if len(crops) != len(rois):
             raise ValueError(f"{len(crops)} crops but {len(rois)} ROIs")
+        if previous_crops is not None and len(previous_crops) != len(crops):
+            raise ValueError(f"{len(previous_crops)} previous crops but {len(crops)} crops")
         if len(rois) == 0:
-            return np.zeros((0, 7), dtype=np.float32)
+            return np.zeros((0, LOCAL_COLUMNS), dtype=np.float32)
         side = self.input_side
-        inputs, mappings = [], []
-        for crop, roi in zip(crops, rois):
+        inputs, mappings, pairs = [], [], []
+        for index, (crop, roi) in enumerate(zip(crops, rois)):
             expected = (int(roi[3] - roi[1]), int(roi[2] - roi[0]))
+            crop = ensure_bgr(crop, "ROI crop")
             if crop.shape[:2] != expected:
                 raise ValueError(f"crop of shape {crop.shape[:2]} does not match its ROI {roi.tolist()} ({expected})")
-            image, mapping = letterbox(ensure_bgr(crop, "ROI crop"), side, side)
+            previous = crop if previous_crops is None else ensure_bgr(previous_crops[index], "previous ROI crop")
+            if previous.shape != crop.shape:
+                raise ValueError(f"previous crop of shape {previous.shape[:2]} does not match its ROI {roi.tolist()}")
+            image, mapping = letterbox(crop, side, side)
             inputs.append(image)
             mappings.append(mapping)
+            pairs.append((previous, crop))
         (output,) = self.session.run(None, {self.input_name: to_blob(inputs)})
-        results = []
-        for index, (out, mapping, roi) in enumerate(zip(output, mappings, rois)):
+        candidates = []
+        for out, mapping, roi in zip(output, mappings, rois):
             detections = decode_output(
                 out,
-                self.score_threshold,
+                self.decode_threshold,
                 self.iou_threshold,
                 self.max_detections_per_roi,
                 box_scale=(side, side),
                 channels=self.class_channels,
             )
+            # Boxes in the crop's pixels; those in the padding of ROIs that stick out are dropped later.
+            candidates.append(self._label(unletterbox(detections, mapping, int(roi[2] - roi[0]), int(roi[3] - roi[1]))))
+        if self.second_stage is not None:
+            rescored = self.second_stage.rescore_many([(p, c, d) for (p, c), d in zip(pairs, candidates)])
+        else:
+            rescored = [np.concatenate([d, one_hot_probabilities(d[:, 5])], axis=1) for d in candidates]
+        results = []
+        for index, (detections, roi) in enumerate(zip(rescored, rois)):
             if not len(detections):
                 continue
-            detections = unletterbox(detections, mapping, int(roi[2] - roi[0]), int(roi[3] - roi[1]))
-            detections[:, [0, 2]] += roi[0]
-            detections[:, [1, 3]] += roi[1]
-            detections[:, [0, 2]] = detections[:, [0, 2]].clip(0, frame_width)
-            detections[:, [1, 3]] = detections[:, [1, 3]].clip(0, frame_height)
-            detections = self._label(drop_degenerate(detections))  # boxes in the padding of ROIs that stick out
-            roi_column = np.full((len(detections), 1), index, dtype=np.float32)
-            results.append(np.concatenate((detections, roi_column), 1))
+            detections = detections.astype(np.float64)
+            detections[:, [0, 2]] = (detections[:, [0, 2]] + roi[0]).clip(0, frame_width)
+            detections[:, [1, 3]] = (detections[:, [1, 3]] + roi[1]).clip(0, frame_height)
+            detections = drop_degenerate(detections)
+            roi_column = np.full((len(detections), 1), index, dtype=np.float64)
+            results.append(
+                np.concatenate((detections[:, :6], roi_column, detections[:, 6 : 6 + PROBABILITY_COLUMNS]), 1)
+            )
         if not results:
-            return np.zeros((0, 7), dtype=np.float32)
+            return np.zeros((0, LOCAL_COLUMNS), dtype=np.float32)
         return np.concatenate(results).astype(np.float32)
 
-    def detect_rois(self, frame_bgr: np.ndarray, rois: np.ndarray) -> np.ndarray:
-        """``(N, 7)`` float32 ``[x1, y1, x2, y2, score, class_id, roi_index]`` in full-frame pixels."""
+    def detect_rois(
+        self, frame_bgr: np.ndarray, rois: np.ndarray, previous_bgr: np.ndarray | None = None
+    ) -> np.ndarray:
+        """``(N, 10)`` float32 rows of :meth:`detect_crops` in full-frame pixels; ``previous_bgr``
+        (same size; None: the frame itself) is cut at the same ROIs for the second stage."""
         frame = ensure_bgr(frame_bgr, "frame")
         h, w = frame.shape[:2]
         rois = self._check_rois(rois, w, h)
         if len(rois) == 0:
-            return np.zeros((0, 7), dtype=np.float32)
-        return self.detect_crops([self.crop(frame, roi) for roi in rois], rois, w, h)
+            return np.zeros((0, LOCAL_COLUMNS), dtype=np.float32)
+        previous_crops = None
+        if previous_bgr is not None and self.second_stage is not None:
+            previous = ensure_bgr(previous_bgr, "previous frame")
+            if previous.shape != frame.shape:
+                raise ValueError(f"previous frame {previous.shape[:2]} and frame {frame.shape[:2]} differ in size")
+            previous_crops = [self.crop(previous, roi) for roi in rois]
+        return self.detect_crops([self.crop(frame, roi) for roi in rois], rois, w, h, previous_crops)

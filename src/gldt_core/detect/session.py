@@ -161,7 +161,7 @@ class OnnxDetector:
         optimize_graph: bool = True,
     ) -> list[Any]:
         """Open the model; returns its session inputs for the subclass to check."""
-        if not 0.0 <= score_threshold <= 1.0:
+        if not isinstance(score_threshold, (int, float)) or not 0.0 <= score_threshold <= 1.0:
             raise DetectorConfigError(f"score_threshold must be in [0, 1], got {score_threshold}")
         self.model_path = Path(model_path) if model_path is not None else default_path
         self.providers, self.num_threads = tuple(providers), num_threads

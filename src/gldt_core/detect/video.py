@@ -58,13 +58,14 @@ def tile_rois(frame_w: int, frame_h: int, side: int = 300, min_overlap: int = 40
 def frame_detections(
     detector: GlobalDetector | LocalDetector, previous: np.ndarray | None, frame: np.ndarray, roi_side: int = 300
 ) -> np.ndarray:
-    """``(N, 6)`` ``[x1, y1, x2, y2, score, class_id]`` of one frame: the global detector on the pair
-    ``(previous, frame)`` (None: the frame with itself), the local one on ``roi_side`` tiles
-    covering the frame, tile seams merged by NMS."""
+    """``(N, 9)`` ``[x1, y1, x2, y2, score, class_id, p_drone, p_bird, p_airplane]`` of one frame:
+    the global detector on the pair ``(previous, frame)`` (None: the frame with itself), the local
+    one on ``roi_side`` tiles covering the frame, tile seams merged by NMS."""
     if isinstance(detector, GlobalDetector):
         return detector.detect(previous, frame)
     h, w = frame.shape[:2]
-    dets = detector.detect_rois(frame, tile_rois(w, h, roi_side))[:, :6]
+    dets = detector.detect_rois(frame, tile_rois(w, h, roi_side), previous)
+    dets = np.delete(dets, 6, axis=1)  # the tile index
     return dets[nms(dets[:, :4], dets[:, 4], 0.5)] if len(dets) else dets
 
 

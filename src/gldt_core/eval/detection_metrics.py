@@ -132,6 +132,15 @@ def pr_auc(result: MatchResult) -> float:
     return float(np.sum(widths * envelope))
 
 
+def precision_recall_at(result: MatchResult, threshold: float) -> tuple[float, float]:
+    """(precision, recall) of the detections scored at ``threshold`` or above (1.0 precision when none)."""
+    kept = result.scores >= threshold
+    true_positives = float(result.true_positive[kept].sum())
+    precision = true_positives / kept.sum() if kept.any() else 1.0
+    recall = true_positives / result.num_gt if result.num_gt else 0.0
+    return float(precision), float(recall)
+
+
 def recall_at_confidence(result: MatchResult, thresholds: np.ndarray) -> np.ndarray:
     """Recall reached when only detections with score >= threshold are kept, for each threshold."""
     if result.num_gt == 0:

@@ -52,14 +52,40 @@ DEFAULT_TAU_DISTANCE = 700.0
 DEFAULT_TAU_SAFE = 0.8
 
 
+#: Table I's pixel sizes are for 1080-line frames.
+REFERENCE_HEIGHT = 1080.0
+#: Smallest ROI side a scaled Table I gives (the local detector needs some context around a target).
+MIN_SCALED_ROI = 96
+
+
 @dataclass(frozen=True)
 class RoiParams:
-    """Geometry thresholds of the ROI manager (paper Table I)."""
+    """Geometry thresholds of the ROI manager (paper Table I).
+
+    ``roi_size`` and ``tau_distance`` are pixels of a ``reference_height``-line frame (Table I's
+    1080); :meth:`at_resolution` scales them to the frame at hand, so that an ROI covers the same
+    share of a 640x512 frame as of a 1080p one. ``reference_height`` None takes them as pixels of
+    every frame.
+    """
 
     roi_size: int = DEFAULT_ROI_SIZE
     tau_overlap: float = DEFAULT_TAU_OVERLAP
     tau_distance: float = DEFAULT_TAU_DISTANCE
     tau_safe: float = DEFAULT_TAU_SAFE
+    reference_height: float | None = REFERENCE_HEIGHT
+
+    def at_resolution(self, frame_height: int) -> RoiParams:
+        """These parameters in pixels of a frame ``frame_height`` lines high."""
+        if self.reference_height is None or frame_height == self.reference_height:
+            return self
+        scale = float(frame_height) / float(self.reference_height)
+        return RoiParams(
+            roi_size=max(MIN_SCALED_ROI, int(round(self.roi_size * scale))),
+            tau_overlap=self.tau_overlap,
+            tau_distance=self.tau_distance * scale,
+            tau_safe=self.tau_safe,
+            reference_height=None,
+        )
 
     def __post_init__(self) -> None:
         if not (isinstance(self.roi_size, (int, np.integer)) and self.roi_size >= 16):
@@ -70,6 +96,14 @@ class RoiParams:
             raise ValueError(f"tau_distance must be a positive number of pixels, got {self.tau_distance!r}")
         if not 0.0 < self.tau_safe <= 1.0:
             raise ValueError(f"tau_safe must be in (0, 1], got {self.tau_safe!r}")
+        if self.reference_height is not None and not (
+            isinstance(self.reference_height, (int, float))
+            and math.isfinite(self.reference_height)
+            and self.reference_height > 0
+        ):
+            raise ValueError(
+                f"reference_height must be a positive number of lines or None, got {self.reference_height!r}"
+            )
 
 
 @dataclass(frozen=True)

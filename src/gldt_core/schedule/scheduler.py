@@ -183,7 +183,7 @@ class ModeScheduler:
                 predictions[:, :4],
                 predictions[:, 4].astype(np.int64),
                 frame_size,
-                cfg.roi,
+                cfg.roi.at_resolution(int(frame_size[1])),
                 previous_groups=self._layout.groups if reason is None else (),
             )
         if reason is not None:

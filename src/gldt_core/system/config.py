@@ -7,7 +7,9 @@ threshold would otherwise silently run the defaults.
 Example (every key shown with its default)::
 
     scheduler: {n_global: 30, n_local: 120, n_miss: 10, local_enabled: true}
-    roi: {size: 300, tau_overlap: 0.2, tau_distance: 700, tau_safe: 0.8}
+    roi: {size: 300, tau_overlap: 0.2, tau_distance: 700, tau_safe: 0.8,
+          reference_height: 1080}   # size and tau_distance are pixels of this many lines, scaled
+                                    # to each frame's height; null = pixels of every frame
     detector:
       global_model: null      # path to an ONNX file; null = the shipped model
                               # (a relative path: beside this YAML, else from the working directory)
@@ -18,6 +20,8 @@ Example (every key shown with its default)::
       nms_iou: 0.5            # duplicate removal across overlapping ROIs
       feature_reuse: null     # AM-YOLO's split pair (gldt export --feature-reuse):
                               # null = when present, false = never, true = required
+      second_stage: beside    # crop classifier re-scoring both detectors' candidates:
+                              # beside = second_stage.onnx next to the global model, a path, or null
     tracker:
       name: jptrack           # or bytetrack
       params: {}              # for the named tracker's config
@@ -78,6 +82,7 @@ class DetectorSettings:
     classes: tuple[int, ...] | None = (1,)
     nms_iou: float = 0.5
     feature_reuse: bool | None = None
+    second_stage: str | None = "beside"
 
     def __post_init__(self) -> None:
         if self.score_threshold is not None and not 0.0 <= self.score_threshold <= 1.0:
@@ -145,7 +150,7 @@ class SystemConfig:
 
 
 _SCHEDULER_KEYS = {"n_global": int, "n_local": int, "n_miss": int, "local_enabled": bool}
-_ROI_KEYS = {"size": int, "tau_overlap": float, "tau_distance": float, "tau_safe": float}
+_ROI_KEYS = {"size": int, "tau_overlap": float, "tau_distance": float, "tau_safe": float, "reference_height": float}
 _DETECTOR_KEYS = {
     "global_model": str,
     "local_model": str,
@@ -154,6 +159,7 @@ _DETECTOR_KEYS = {
     "classes": list,
     "nms_iou": float,
     "feature_reuse": bool,
+    "second_stage": str,
 }
 _TRACKER_KEYS = {"name": str, "params": dict, "jptrack": dict, "bytetrack": dict}
 _TOP_KEYS = {"scheduler", "roi", "detector", "tracker", "track_lost_frames"}
@@ -195,14 +201,20 @@ def config_from_dict(data: Mapping[str, Any] | None, source: str = "config") -> 
         roi = _checked(data.get("roi"), _ROI_KEYS, f"{source}: roi")
         det = _checked(data.get("detector"), _DETECTOR_KEYS, f"{source}: detector")
         trk = _checked(data.get("tracker"), _TRACKER_KEYS, f"{source}: tracker")
-        roi_params = RoiParams(**{("roi_size" if k == "size" else k): v for k, v in roi.items() if v is not None})
+        roi_params = RoiParams(
+            **{
+                ("roi_size" if k == "size" else k): v
+                for k, v in roi.items()
+                if v is not None or k == "reference_height"
+            }
+        )
         scheduler = SchedulerConfig(roi=roi_params, **{k: v for k, v in sched.items() if v is not None})
         if det.get("providers") is not None:
             det["providers"] = tuple(str(p) for p in det["providers"])
         if det.get("classes") is not None:
             det["classes"] = tuple(int(c) for c in det["classes"])
         # null is meaningful for these keys (shipped model / every class), so it is kept.
-        keep_null = ("global_model", "local_model", "score_threshold", "classes")
+        keep_null = ("global_model", "local_model", "score_threshold", "classes", "second_stage")
         detector = DetectorSettings(**{k: v for k, v in det.items() if v is not None or k in keep_null})
         tracker = TrackerSettings(**{k: v for k, v in trk.items() if v is not None})
         lost = data.get("track_lost_frames")
@@ -241,10 +253,20 @@ def with_models_found_beside(config: SystemConfig, folder: Path) -> SystemConfig
     detector = config.detector
     global_model = _found_beside(detector.global_model, folder)
     local_model = _found_beside(detector.local_model, folder)
-    if global_model == detector.global_model and local_model == detector.local_model:
+    second_stage = detector.second_stage
+    if second_stage != "beside":
+        second_stage = _found_beside(second_stage, folder)
+    if (global_model, local_model, second_stage) == (
+        detector.global_model,
+        detector.local_model,
+        detector.second_stage,
+    ):
         return config
     return dataclasses.replace(
-        config, detector=dataclasses.replace(detector, global_model=global_model, local_model=local_model)
+        config,
+        detector=dataclasses.replace(
+            detector, global_model=global_model, local_model=local_model, second_stage=second_stage
+        ),
     )
 
 

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
 
+from gldt_core.detect.second_stage import GLOBAL_COLUMNS, LOCAL_COLUMNS, PROBABILITY_COLUMNS
 from gldt_core.schedule.roi import EMPTY_LAYOUT, RoiLayout
 from gldt_core.schedule.scheduler import FramePlan, Mode, ModeScheduler
 from gldt_core.system.config import SystemConfig
@@ -36,8 +37,10 @@ from gldt_core.system.steps import (
     merge_local_detections,
     stable_predictions,
     valid_detection_mask,
+    with_class_probabilities,
 )
 from gldt_core.system.timing import StageTimer
+from gldt_core.track.class_evidence import ClassEvidence
 
 if TYPE_CHECKING:
     from gldt_core.detect.global_detector import GlobalCarry
@@ -141,14 +144,21 @@ def build_detectors(config: SystemConfig) -> tuple[GlobalDetectorLike, LocalDete
     from pathlib import Path
 
     settings = config.detector
-    for key, path in (("global_model", settings.global_model), ("local_model", settings.local_model)):
+    models = [("global_model", settings.global_model), ("local_model", settings.local_model)]
+    if settings.second_stage not in (None, "beside"):
+        models.append(("second_stage", settings.second_stage))
+    for key, path in models:
         if path is not None and not Path(path).is_file():
             raise FileNotFoundError(f"detector.{key}: model file not found: {path}")
 
     from gldt_core import detect
 
     # The detectors are asked about the tracked classes only (see decode_output's ``channels``).
-    kwargs: dict[str, Any] = {"providers": tuple(settings.providers), "classes": settings.classes}
+    kwargs: dict[str, Any] = {
+        "providers": tuple(settings.providers),
+        "classes": settings.classes,
+        "second_stage": settings.second_stage,
+    }
     if settings.score_threshold is not None:
         kwargs["score_threshold"] = settings.score_threshold
     global_detector = detect.GlobalDetector(
@@ -185,6 +195,9 @@ class GLDTSystem:
             raise ValueError("local detection is enabled (scheduler.local_enabled) but no local detector was given")
         self.global_detector = global_detector
         self.local_detector = local_detector
+        self._local_takes_previous = local_detector is not None and accepts_keyword(
+            local_detector.detect_rois, "previous_bgr"
+        )
         # A tracker we build is rebuilt for each stream's frame size (its costs are normalised
         # by it); an injected one is the caller's and is only reset.
         self._owns_tracker = tracker is None
@@ -209,7 +222,9 @@ class GLDTSystem:
         self._period: float | None = None
         self._last_plan: FramePlan | None = None
         self._tracks = np.zeros((0, 6))
+        self._track_classes = np.zeros((0, 2))
         self._detections = np.zeros((0, 5))
+        self.class_evidence = ClassEvidence()
 
     # ------------------------------------------------------------------ state
     @property
@@ -240,6 +255,7 @@ class GLDTSystem:
     def reset(self) -> None:
         """Forget the stream (tracks, frame pair, scheduler); counters of the run are kept."""
         self.tracker.reset()
+        self.class_evidence.reset()
         self.scheduler.reset()
         self._previous = None
         self._previous_carry = None
@@ -277,8 +293,9 @@ class GLDTSystem:
         return frame, size
 
     def _count_invalid(self, raw: np.ndarray, columns: int) -> np.ndarray:
-        """Detector output as ``(N, columns)`` floats; counts the rows the steps will drop."""
-        raw = np.asarray(raw, dtype=np.float64).reshape(-1, columns)
+        """Detector output as ``(N, columns)`` floats (class probabilities added where a detector
+        reports none); counts the rows the steps will drop."""
+        raw = with_class_probabilities(raw, columns)
         invalid = int((~valid_detection_mask(raw)).sum()) if len(raw) else 0
         if invalid:
             self._invalid_detections += invalid
@@ -295,6 +312,14 @@ class GLDTSystem:
         if detect_pair is None:
             return self.global_detector.detect(previous, frame), None
         return detect_pair(previous, frame, carry)
+
+    def _detect_local(self, previous: np.ndarray, frame: np.ndarray, rois: np.ndarray) -> np.ndarray:
+        """The local detector on this frame's ROIs, with the previous frame for its second stage
+        where it takes one (the shipped one does; test doubles need not)."""
+        assert self.local_detector is not None
+        if self._local_takes_previous:
+            return cast(Any, self.local_detector).detect_rois(frame, rois, previous_bgr=previous)
+        return self.local_detector.detect_rois(frame, rois)
 
     def process(self, frame: np.ndarray, t: float) -> np.ndarray:
         """Run one frame (HxWx3 uint8 BGR, ``t`` seconds); returns ``(M, 6)`` ``[x1,y1,x2,y2,id,score]``."""
@@ -316,9 +341,10 @@ class GLDTSystem:
         if plan.mode is Mode.GLOBAL:
             with timer.stage("gd"):
                 raw, next_carry = self._detect_global(previous, frame, carry)
-                raw = self._count_invalid(raw, 6)
-                raw = filter_classes(raw, 6, self.config.detector.classes)
+                raw = self._count_invalid(raw, GLOBAL_COLUMNS)
+                raw = filter_classes(raw, GLOBAL_COLUMNS, self.config.detector.classes)
             detections = raw[:, :5]
+            probabilities = raw[:, GLOBAL_COLUMNS - PROBABILITY_COLUMNS :]
             detection_rois = None
             self._global_frames += 1
         else:
@@ -326,13 +352,14 @@ class GLDTSystem:
             # __init__ made sure there is a local detector.
             assert self.local_detector is not None
             with timer.stage("ld"):
-                raw = self._count_invalid(self.local_detector.detect_rois(frame, plan.rois), 7)
+                raw = self._count_invalid(self._detect_local(previous, frame, plan.rois), LOCAL_COLUMNS)
                 raw = merge_local_detections(raw, self.config.detector.classes, self.config.detector.nms_iou)
                 try:
                     counts = detections_per_roi(raw, len(plan.layout))
                 except ValueError as error:
                     raise ValueError(f"frame {self._frame_index}: {error}") from None
             detections = raw[:, :5]
+            probabilities = raw[:, LOCAL_COLUMNS - PROBABILITY_COLUMNS :]
             detection_rois = plan.rois[raw[:, 6].astype(np.int64)].astype(np.float64)
             self._local_frames += 1
 
@@ -343,6 +370,7 @@ class GLDTSystem:
             else:
                 output = self.tracker.update(detections, t)
             tracks = np.asarray(output, dtype=np.float64).reshape(-1, 6)
+            classes = self.class_evidence.update(tracks, detections, probabilities)
         if plan.mode is Mode.LOCAL:
             self.scheduler.report_detections(plan, counts)
 
@@ -358,9 +386,16 @@ class GLDTSystem:
         self._last_t = t
         self._last_plan = plan
         self._tracks = tracks
+        self._track_classes = classes
         self._detections = detections
         self._frame_index += 1
         return tracks
+
+    @property
+    def track_classes(self) -> np.ndarray:
+        """``(M, 2)`` ``[class_id, confidence]`` of the tracks the last :meth:`process` returned, in
+        their order: the class evidence of each track's life (1 drone, 2 bird, 3 airplane, -1 none)."""
+        return self._track_classes.copy()
 
     @property
     def global_share(self) -> float:

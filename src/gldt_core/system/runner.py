@@ -53,8 +53,10 @@ class RunResult:
         return self.global_frames / self.frames if self.frames else 0.0
 
 
-def tracks_to_mot(tracks: np.ndarray, frame_number: int) -> np.ndarray:
-    """``(M, 6)`` ``[x1,y1,x2,y2,id,score]`` -> MOTChallenge rows ``frame,id,x,y,w,h,score,-1,-1,-1``."""
+def tracks_to_mot(tracks: np.ndarray, frame_number: int, classes: np.ndarray | None = None) -> np.ndarray:
+    """``(M, 6)`` ``[x1,y1,x2,y2,id,score]`` -> MOTChallenge rows ``frame,id,x,y,w,h,score,class,-1,-1``;
+    ``class`` is the track's class id from ``classes`` (``(M,)`` or the ``(M, 2)`` of
+    :attr:`GLDTSystem.track_classes`), -1 (unknown) without."""
     tracks = np.asarray(tracks, dtype=np.float64).reshape(-1, 6)
     out = np.full((len(tracks), 10), -1.0)
     out[:, 0] = frame_number
@@ -64,6 +66,9 @@ def tracks_to_mot(tracks: np.ndarray, frame_number: int) -> np.ndarray:
     out[:, 4] = tracks[:, 2] - tracks[:, 0]
     out[:, 5] = tracks[:, 3] - tracks[:, 1]
     out[:, 6] = tracks[:, 5]
+    if classes is not None:
+        classes = np.asarray(classes, dtype=np.float64)
+        out[:, 7] = classes[:, 0] if classes.ndim == 2 else classes
     return out
 
 
@@ -100,7 +105,7 @@ class _Recorder:
 
     def step(self, frame: Any) -> None:
         tracks = self.system.process(frame.image, frame.stamp)
-        self.rows.append(tracks_to_mot(tracks, int(frame.index) + 1))
+        self.rows.append(tracks_to_mot(tracks, int(frame.index) + 1, getattr(self.system, "track_classes", None)))
         self.modes.append(self.system.state.mode is Mode.GLOBAL)
         if self.collect_ground_truth:
             gt = getattr(frame, "ground_truth", None)

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from gldt_core.detect.postprocess import nms
+from gldt_core.detect.second_stage import LOCAL_COLUMNS, PROBABILITY_COLUMNS, one_hot_probabilities
 
 
 def state_name(state: Any) -> str:
@@ -53,6 +54,21 @@ def valid_detection_mask(raw: np.ndarray) -> np.ndarray:
     return np.all(np.isfinite(raw[:, :5]), axis=1) & (raw[:, 2] > raw[:, 0]) & (raw[:, 3] > raw[:, 1])
 
 
+def with_class_probabilities(raw: np.ndarray, columns: int) -> np.ndarray:
+    """Detector rows as ``(N, columns)`` floats. Rows without the three class-probability columns
+    (an injected detector that reports ``columns - 3``) get one-hot ones from their class id."""
+    raw = np.asarray(raw, dtype=np.float64)
+    if raw.size == 0:
+        return np.zeros((0, columns))
+    width = raw.shape[-1] if raw.ndim == 2 else columns
+    raw = raw.reshape(-1, width)
+    if width == columns - PROBABILITY_COLUMNS:
+        return np.concatenate([raw, one_hot_probabilities(np.nan_to_num(raw[:, 5]))], axis=1)
+    if width != columns:
+        raise ValueError(f"detector rows have {width} columns; expected {columns} (or {columns - PROBABILITY_COLUMNS})")
+    return raw
+
+
 def filter_classes(raw: np.ndarray, columns: int, classes: Sequence[int] | None) -> np.ndarray:
     """Drop invalid rows (see :func:`valid_detection_mask`), then keep detections whose class id
     (column 5) is in ``classes`` (all when None)."""
@@ -65,8 +81,8 @@ def filter_classes(raw: np.ndarray, columns: int, classes: Sequence[int] | None)
 
 
 def merge_local_detections(raw: np.ndarray, classes: Sequence[int] | None, nms_iou: float) -> np.ndarray:
-    """Class filter, then NMS across overlapping ROIs: ``(N, 7)`` local detections for the tracker."""
-    raw = filter_classes(raw, 7, classes)
+    """Class filter, then NMS across overlapping ROIs: ``(N, 10)`` local detections for the tracker."""
+    raw = filter_classes(raw, LOCAL_COLUMNS, classes)
     if len(raw) > 1:
         raw = raw[nms(raw[:, :4], raw[:, 4], nms_iou)]
     return raw
@@ -74,7 +90,7 @@ def merge_local_detections(raw: np.ndarray, classes: Sequence[int] | None, nms_i
 
 def detections_per_roi(local_detections: np.ndarray, roi_count: int) -> np.ndarray:
     """How many (merged) local detections each ROI produced, for the scheduler's N_m rule."""
-    roi_index = np.asarray(local_detections, dtype=np.float64).reshape(-1, 7)[:, 6].astype(np.int64)
+    roi_index = np.asarray(local_detections, dtype=np.float64).reshape(-1, LOCAL_COLUMNS)[:, 6].astype(np.int64)
     if len(roi_index) and (roi_index.min() < 0 or roi_index.max() >= roi_count):
         raise ValueError(f"local detector returned roi_index {sorted(set(roi_index.tolist()))} for {roi_count} ROIs")
     return np.bincount(roi_index, minlength=roi_count)[:roi_count]

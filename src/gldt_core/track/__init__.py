@@ -18,6 +18,7 @@ Modules, each importing only the ones listed before it:
 * ``birth``: optional track birth from persistent low-score detections;
 * ``base``: the multi-stage association loop both trackers share;
 * ``bytetrack``, ``jptrack``: the two trackers and their configs;
+* ``class_evidence``: what each track is (drone, bird, airplane), from the detections it was matched with;
 * ``runner``: runs a tracker over a MOT detection table (``gldt track``, the benchmark).
 """
 

@@ -95,13 +95,14 @@ DEFAULTS: dict[str, Any] = {
 }
 
 
-def _merge(base: dict[str, Any], override: dict[str, Any], where: str = "") -> dict[str, Any]:
+def merge_config(base: dict[str, Any], override: dict[str, Any], where: str = "") -> dict[str, Any]:
+    """``override`` over ``base``, mappings merged key by key; keys ``base`` lacks are refused."""
     out = copy.deepcopy(base)
     for key, value in override.items():
         if key not in base and base is not DEFAULTS["model"] and where != "model":
             raise ValueError(f"unknown config key {where + key!r}; known: {sorted(base)}")
         if isinstance(value, dict) and isinstance(base.get(key), dict):
-            out[key] = _merge(base[key], value, f"{where}{key}.")
+            out[key] = merge_config(base[key], value, f"{where}{key}.")
         else:
             out[key] = value
     return out
@@ -151,7 +152,7 @@ def load_config(path: Path | str) -> dict[str, Any]:
     (typos must not be silent)."""
     path = Path(path)
     raw = _read_config(path)
-    config = _merge(DEFAULTS, raw)
+    config = merge_config(DEFAULTS, raw)
     spec = ModelSpec.from_dict(config["model"])  # validate early
     multiple = spec.input_multiple
     for key in ("input_size", "val_size"):
@@ -206,7 +207,7 @@ def build_datasets(
     seed = config["seed"]
     workers = int(data["load_workers"])
     needs_real = data["use_real"] or data["real_validation"]
-    split = halmstad_split(data["halmstad_root"]) if needs_real else {"train": [], "val": []}
+    split = halmstad_split(data["halmstad_root"]) if needs_real else {"train": [], "val": [], "val_b": []}
     train_pairs, val_pairs = [], []
     if data["use_real"]:
         train_pairs += load_halmstad(

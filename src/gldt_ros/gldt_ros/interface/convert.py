@@ -1,7 +1,8 @@
 """Conversions between gldt_core arrays/objects and gldt_msgs messages.
 
 Kept free of node logic so they can be property-tested. Array layouts are the core's:
-detections ``[x1, y1, x2, y2, score, class_id(, roi_index)]``, ROIs ``[x1, y1, x2, y2]``.
+detections ``[x1, y1, x2, y2, score, class_id(, roi_index), p_drone, p_bird, p_airplane]``,
+ROIs ``[x1, y1, x2, y2]``.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import numpy as np
 from gldt_msgs.msg import Detection, DetectionArray, Roi, Track, TrackArray
 from sensor_msgs.msg import Image, RegionOfInterest
 
+from gldt_core.detect.second_stage import GLOBAL_COLUMNS, LOCAL_COLUMNS, PROBABILITY_COLUMNS
 from gldt_core.io.imaging import decode_compressed_image, decode_raw_image, encode_bgr8
 from gldt_core.system.steps import state_name
 
@@ -45,9 +47,12 @@ def bgr_to_image(frame: np.ndarray, header: Any) -> Image:
 
 
 def detections_to_msgs(detections: np.ndarray, source: int) -> list[Detection]:
-    """``(N, >=6)`` ``[x1, y1, x2, y2, score, class(, roi)]`` -> ``Detection`` messages."""
+    """Global rows ``(N, 9)`` or local rows ``(N, 10)`` (see :mod:`gldt_core.detect.second_stage`:
+    box, score, class, the ROI index for local ones, three class probabilities) -> ``Detection``s."""
+    detections = np.asarray(detections, dtype=np.float64)
+    columns = LOCAL_COLUMNS if source == Detection.SOURCE_LOCAL else GLOBAL_COLUMNS
     out = []
-    for row in np.asarray(detections, dtype=np.float64).reshape(-1, detections.shape[1] if len(detections) else 6):
+    for row in detections.reshape(-1, columns):
         x1, y1, x2, y2, score, class_id = row[:6]
         out.append(
             Detection(
@@ -58,7 +63,8 @@ def detections_to_msgs(detections: np.ndarray, source: int) -> list[Detection]:
                 score=float(score),
                 class_id=int(class_id),
                 source=source,
-                roi_index=int(row[6]) if row.shape[0] > 6 else -1,
+                roi_index=int(row[6]) if source == Detection.SOURCE_LOCAL else -1,
+                class_probabilities=[float(p) for p in row[columns - PROBABILITY_COLUMNS :]],
             )
         )
     return out
@@ -77,6 +83,12 @@ def detection_array_to_tracker_input(message: DetectionArray) -> np.ndarray:
         for d in message.detections
     ]
     return np.asarray(rows, dtype=np.float64).reshape(-1, 5)
+
+
+def detection_array_class_probabilities(message: DetectionArray) -> np.ndarray:
+    """``(N, 3)`` drone, bird, airplane probabilities of the detections, in their order."""
+    rows = [list(d.class_probabilities) for d in message.detections]
+    return np.asarray(rows, dtype=np.float64).reshape(-1, PROBABILITY_COLUMNS)
 
 
 def rois_to_msgs(rois: np.ndarray, track_ids: Sequence[Sequence[int]] | None = None) -> list[Roi]:
@@ -114,8 +126,9 @@ def state_code(state: Any) -> int:
     return _STATE_CODES[name]
 
 
-def track_to_msg(track: Any) -> Track:
-    """A core ``Track`` object -> ``gldt_msgs/Track`` (bearing fields are filled by the caller)."""
+def track_to_msg(track: Any, class_id: int = Track.CLASS_UNKNOWN, class_confidence: float = 0.0) -> Track:
+    """A core ``Track`` object -> ``gldt_msgs/Track`` (bearing fields are filled by the caller);
+    ``class_id`` / ``class_confidence`` from :class:`gldt_core.track.class_evidence.ClassEvidence`."""
     x1, y1, x2, y2 = (float(v) for v in track.box_xyxy)
     vx, vy = (float(v) for v in track.velocity_px_s[:2])
     covariance = np.zeros(64)
@@ -136,6 +149,8 @@ def track_to_msg(track: Any) -> Track:
         hits=int(track.hits),
         frames_since_update=int(track.frames_since_update),
         score=float(track.score),
+        class_id=int(class_id),
+        class_confidence=float(class_confidence),
     )
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from gldt_core.schedule.roi import DEFAULT_ROI_SIZE
+from gldt_core.schedule.roi import DEFAULT_ROI_SIZE, REFERENCE_HEIGHT
 from gldt_core.schedule.scheduler import DEFAULT_N_GLOBAL, DEFAULT_N_LOCAL, DEFAULT_N_MISS
 from gldt_core.system.config import DetectorSettings
 
@@ -45,9 +45,16 @@ _CLASSES_DEFAULT = ",".join(str(c) for c in _DETECTOR_DEFAULTS.classes) if _DETE
 _SCORE_THRESHOLD = ParamSpec(
     "score_threshold",
     _DETECTOR_DEFAULTS.score_threshold,
-    "Lowest detection score kept (default: the GL-DT system's, as in gldt run); -1 = the detector's own default (0.25)",
+    "Lowest detection score kept (default: the GL-DT system's, as in gldt run); -1 = the detector's own default "
+    "(0.5 with the second stage, 0.25 without)",
     -1.0,
     1.0,
+)
+_SECOND_STAGE = ParamSpec(
+    "second_stage",
+    _DETECTOR_DEFAULTS.second_stage or "none",
+    "Crop classifier that re-scores and re-boxes the candidates: beside (second_stage.onnx next to the model), "
+    "a path, or none",
 )
 _DIAG_PERIOD = ParamSpec("diagnostics_period", 1.0, "Seconds between /diagnostics messages", 0.1, 60.0)
 
@@ -70,6 +77,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "global_detector": (
         ParamSpec("model_path", "", "AM-YOLO ONNX file; empty = the model shipped with gldt_core"),
         _SCORE_THRESHOLD,
+        _SECOND_STAGE,
         ParamSpec(
             "classes",
             _CLASSES_DEFAULT,
@@ -95,6 +103,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "local_detector": (
         ParamSpec("model_path", "", "Local P2 ONNX file; empty = the model shipped with gldt_core"),
         _SCORE_THRESHOLD,
+        _SECOND_STAGE,
         ParamSpec(
             "classes",
             _CLASSES_DEFAULT,
@@ -124,7 +133,20 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
             1,
             10000,
         ),
-        ParamSpec("roi_size", DEFAULT_ROI_SIZE, "Side of a local-detection ROI [px]", 32, 2048),
+        ParamSpec(
+            "roi_size",
+            DEFAULT_ROI_SIZE,
+            "Side of a local-detection ROI [px of a roi_reference_height-line frame, scaled to the camera's]",
+            32,
+            2048,
+        ),
+        ParamSpec(
+            "roi_reference_height",
+            REFERENCE_HEIGHT,
+            "Frame height the pixel sizes of Table I (roi_size, tau_d) are given for; 0 = pixels of every frame",
+            0.0,
+            100000.0,
+        ),
         ParamSpec(
             "report_timeout",
             5.0,
@@ -178,6 +200,7 @@ def detector_kwargs(node_param: Any) -> dict[str, Any]:
         "num_threads": int(node_param("num_threads")) or None,
         # Ask the model about the tracked classes only, as gldt_core.system.gldt_system.build_detectors does.
         "classes": parse_classes(node_param("classes")),
+        "second_stage": None if node_param("second_stage") in ("", "none") else node_param("second_stage"),
     }
     if float(node_param("score_threshold")) >= 0:
         kwargs["score_threshold"] = float(node_param("score_threshold"))

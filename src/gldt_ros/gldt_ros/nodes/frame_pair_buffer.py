@@ -156,6 +156,9 @@ class FramePairBuffer(GldtNode):
         else:
             rois = msgs_to_rois(decision.rois)
             crops = [bgr_to_image(self.crop(frame, roi), header) for roi in rois]
+            # The previous frame at the same ROIs lets the local detector's second stage see motion
+            # (the offline system gives it the previous frame too; the first frame pairs with itself).
+            previous_crops = [bgr_to_image(self.crop(previous, roi), header) for roi in rois]
             self.crops.publish(
                 RoiCrops(
                     header=header,
@@ -164,6 +167,7 @@ class FramePairBuffer(GldtNode):
                     full_height=frame.shape[0],
                     rois=list(decision.rois),
                     crops=crops,
+                    previous_crops=previous_crops,
                 )
             )
         self._decisions[index] = (

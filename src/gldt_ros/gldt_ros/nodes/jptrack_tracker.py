@@ -21,8 +21,15 @@ from gldt_core.system.config import SystemConfig, TrackerSettings
 from gldt_core.system.gldt_system import accepts_keyword, build_tracker
 from gldt_core.system.stamps import StampOrder
 from gldt_core.system.steps import stable_predictions
+from gldt_core.track.class_evidence import ClassEvidence
 from gldt_ros.interface import qos, topics
-from gldt_ros.interface.convert import detection_array_to_tracker_input, msgs_to_rois, stamp_seconds, track_to_msg
+from gldt_ros.interface.convert import (
+    detection_array_class_probabilities,
+    detection_array_to_tracker_input,
+    msgs_to_rois,
+    stamp_seconds,
+    track_to_msg,
+)
 from gldt_ros.interface.track_fields import fill_planner_fields, markers_for
 from gldt_ros.runtime.node_base import GldtNode, run_node
 
@@ -34,6 +41,7 @@ class TrackerNode(GldtNode):
             tracker=TrackerSettings(name=self.param("tracker")), track_lost_frames=int(self.param("lost_frames_kept"))
         )
         self.tracker = build_tracker(self.config)
+        self.class_evidence = ClassEvidence()
         self._takes_rois = accepts_keyword(self.tracker.update, "rois")
         self._frame_size: tuple[int, int] | None = None
         self.intrinsics: PinholeIntrinsics | None = None
@@ -68,6 +76,7 @@ class TrackerNode(GldtNode):
             if self._frame_size is not None:
                 self.get_logger().warning(f"frame size changed to {size[0]}x{size[1]}; tracker re-initialised")
             self.tracker = build_tracker(self.config, size)
+            self.class_evidence.reset()
             self._frame_size = size
             self._order.forget()
         self._check_time(t, tick.frame_index)
@@ -99,6 +108,7 @@ class TrackerNode(GldtNode):
                 f"frame {frame_index}: stream restarted ({last:.3f} s -> {t:.3f} s); tracker reset"
             )
             self.tracker.reset()
+            self.class_evidence.reset()
 
     def on_detections(self, message: DetectionArray) -> None:
         t = stamp_seconds(message.header.stamp)
@@ -113,11 +123,12 @@ class TrackerNode(GldtNode):
         else:
             output = self.tracker.update(detections, t)
         rows = np.asarray(output, dtype=np.float64).reshape(-1, 6)
+        classes = self.class_evidence.update(rows, detections, detection_array_class_probabilities(message))
         by_id = {int(track.track_id): track for track in self.tracker.tracks}
         tracks = []
-        for x1, y1, x2, y2, track_id, score in rows:
+        for (x1, y1, x2, y2, track_id, score), (class_id, confidence) in zip(rows, classes):
             track = by_id.get(int(track_id))
-            out = track_to_msg(track) if track is not None else None
+            out = track_to_msg(track, int(class_id), float(confidence)) if track is not None else None
             if out is None:
                 continue
             out.center_x, out.center_y, out.width, out.height = (x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1

@@ -32,7 +32,11 @@ class LocalDetectorNode(GldtNode):
         start = time.perf_counter()
         rois = msgs_to_rois(message.rois)
         crops = [image_to_bgr(crop) for crop in message.crops]
-        raw = self.detector.detect_crops(crops, rois, int(message.full_width), int(message.full_height))
+        # Sent only where the detector has a second stage to look at motion with.
+        previous = [image_to_bgr(crop) for crop in message.previous_crops] or None
+        raw = self.detector.detect_crops(
+            crops, rois, int(message.full_width), int(message.full_height), previous_crops=previous
+        )
         detections = merge_local_detections(raw, self.classes, float(self.param("nms_iou")))
         self.publisher.publish(
             DetectionArray(

@@ -36,7 +36,10 @@ class ModeSchedulerNode(GldtNode):
                 n_global=int(self.param("global_frames")),
                 n_local=int(self.param("local_frames")),
                 n_miss=int(self.param("miss_frames")),
-                roi=RoiParams(roi_size=int(self.param("roi_size"))),
+                roi=RoiParams(
+                    roi_size=int(self.param("roi_size")),
+                    reference_height=float(self.param("roi_reference_height")) or None,
+                ),
             )
         )
         self.lockstep = bool(self.param("lockstep"))

@@ -1,0 +1,448 @@
+"""Training the second stage (:mod:`gldt_core.detect.second_stage`): a crop classifier with box refinement.
+
+``gldt train second-stage --config CFG [--resume CKPT]``. The Halmstad training clips are split
+again by name: most train the classifier, every ``calibration_period``-th clip of each category
+is kept for the calibration (the logistic map from logits and detector score to the probability
+of a drone at IoU 0.5) and for the figures in the model card. The validation splits of
+:mod:`gldt_core.eval.halmstad_split` are never read here.
+
+Training is resumable: ``last.pt`` holds the model, the optimiser, the step reached, the random
+generators and the accumulated training time, and each epoch's data order is a function of
+(seed, epoch), so a run stopped at any epoch and resumed gives the same weights as one that ran
+through. A resume checks the checkpoint against the config before anything is written.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from gldt_core.detect.second_stage import (
+    CLASS_NAMES,
+    CONTEXT,
+    CROP_SIZE,
+    MIN_SIDE,
+    NUM_CLASSES,
+    Calibration,
+    evidence,
+)
+from gldt_core.eval.halmstad_split import clip_category, halmstad_split
+from gldt_core.training.crops import SOURCES, CropSet, CropSpec, build_crops
+
+DEFAULTS: dict[str, Any] = {
+    "seed": 0,
+    "threads": 1,
+    "out_dir": "runs/second_stage",
+    "model": {"channels": [16, 32, 64, 96], "hidden": 128},
+    "data": {
+        "halmstad_root": None,
+        "cache_dir": "/tmp/gldt-cache",
+        "calibration_period": 5,
+        "crops": asdict(CropSpec()),
+        "global_model": None,
+        "local_model": None,
+    },
+    "train": {
+        "epochs": 12,
+        "batch_size": 128,
+        "lr": 0.003,
+        "weight_decay": 0.0005,
+        "quality_weight": 1.0,
+        "max_wall_s": None,
+    },
+}
+
+
+#: Fewest optimiser steps the one-cycle schedule is defined for.
+MIN_STEPS = 10
+
+
+class ResumeError(ValueError):
+    """A checkpoint that cannot be resumed from (missing, unreadable, or for another config)."""
+
+
+def conv(cin: int, cout: int, stride: int) -> nn.Sequential:
+    return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.SiLU())
+
+
+class CropClassifier(nn.Module):
+    """``(N, 6, 64, 64)`` crops (0-255, previous then current BGR) and ``(N, 4)`` box geometry
+    (:func:`~gldt_core.detect.second_stage.encode_boxes`) -> class logits ``(N, 4)``, box-quality
+    logit ``(N, 1)`` (the predicted IoU of the box with its object's, as a logit)."""
+
+    def __init__(self, channels: list[int], hidden: int) -> None:
+        super().__init__()
+        c0, c1, c2, c3 = channels
+        self.features = nn.Sequential(
+            conv(6, c0, 2),  # 32
+            conv(c0, c1, 2),  # 16
+            conv(c1, c1, 1),
+            conv(c1, c2, 2),  # 8
+            conv(c2, c2, 1),
+            conv(c2, c3, 2),  # 4
+        )
+        self.neck = nn.Sequential(nn.Flatten(), nn.Linear(c3 * (CROP_SIZE // 16) ** 2, hidden), nn.SiLU())
+        self.classes = nn.Linear(hidden, NUM_CLASSES)
+        # The box is known only as numbers, so the quality head sees them beside the image features.
+        self.quality = nn.Sequential(nn.Linear(hidden + 4, hidden // 2), nn.SiLU(), nn.Linear(hidden // 2, 1))
+
+    def forward(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        x = self.neck(self.features(crops / 127.5 - 1.0))
+        return self.classes(x), self.quality(torch.cat([x, geometry], dim=1))
+
+
+def split_for_calibration(clips: list[str], period: int) -> tuple[list[str], list[str]]:
+    """(fit clips, calibration clips): every ``period``-th clip of each category, from the first, calibrates."""
+    fit: list[str] = []
+    calibration: list[str] = []
+    by_category: dict[str, list[str]] = {}
+    for clip in sorted(clips):
+        by_category.setdefault(clip_category(clip), []).append(clip)
+    for names in by_category.values():
+        for i, name in enumerate(names):
+            (calibration if i % period == 0 else fit).append(name)
+    return fit, calibration
+
+
+def augment(crops: np.ndarray, geometry: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal flips (of the crop and its box) and brightness/contrast jitter, the same for both frames."""
+    crops = crops.astype(np.float32)
+    geometry = geometry.astype(np.float32)
+    flip = rng.random(len(crops)) < 0.5
+    crops[flip] = crops[flip, :, :, ::-1]
+    geometry[flip, 0] = -geometry[flip, 0]
+    gain = rng.uniform(0.75, 1.25, size=(len(crops), 1, 1, 1)).astype(np.float32)
+    bias = rng.uniform(-25, 25, size=(len(crops), 1, 1, 1)).astype(np.float32)
+    return np.clip(crops * gain + bias, 0, 255), geometry
+
+
+def losses(
+    logits: torch.Tensor,
+    quality: torch.Tensor,
+    labels: torch.Tensor,
+    iou: torch.Tensor,
+    class_weights: torch.Tensor,
+    quality_weight: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Weighted cross-entropy over the classes; binary cross-entropy of the quality logit against the IoU."""
+    ce = nn.functional.cross_entropy(logits, labels, weight=class_weights)
+    bce = nn.functional.binary_cross_entropy_with_logits(quality.reshape(-1), iou)
+    return ce, quality_weight * bce
+
+
+def model_signature(config: dict[str, Any]) -> dict[str, Any]:
+    """What a checkpoint must share with the config to be resumed or exported under it."""
+    return {"model": config["model"], "crop_size": CROP_SIZE, "context": CONTEXT, "min_side": MIN_SIDE}
+
+
+def load_resume(path: Path, config: dict[str, Any]) -> dict[str, Any]:
+    """The checkpoint at ``path``, checked against ``config``; :class:`ResumeError` with one line otherwise."""
+    path = Path(path)
+    if not path.is_file():
+        raise ResumeError(f"cannot resume: checkpoint not found: {path}")
+    try:
+        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
+    except Exception as error:  # a truncated or foreign file: torch raises several kinds
+        raise ResumeError(
+            f"cannot resume: {path} is not a readable checkpoint ({type(error).__name__}: {error})"
+        ) from None
+    if not isinstance(checkpoint, dict) or checkpoint.get("kind") != "second_stage":
+        raise ResumeError(f"cannot resume: {path} is not a second-stage checkpoint")
+    if checkpoint.get("signature") != model_signature(config):
+        raise ResumeError(
+            f"cannot resume: {path} was trained with {checkpoint.get('signature')}, "
+            f"the config asks for {model_signature(config)}"
+        )
+    return checkpoint
+
+
+def _save(path: Path, payload: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(payload, tmp)
+    tmp.replace(path)
+
+
+def predict(model: CropClassifier, crops: CropSet, batch: int = 512) -> tuple[np.ndarray, np.ndarray]:
+    """Class logits ``(N, 4)`` and quality logits ``(N,)`` of a crop set, in eval mode."""
+    model.eval()
+    logits, quality = [], []
+    with torch.no_grad():
+        for start in range(0, len(crops), batch):
+            out = model(
+                torch.from_numpy(crops.crops[start : start + batch].astype(np.float32)),
+                torch.from_numpy(crops.geometry[start : start + batch].astype(np.float32)),
+            )
+            logits.append(out[0].numpy())
+            quality.append(out[1].numpy().reshape(-1))
+    return np.concatenate(logits), np.concatenate(quality)
+
+
+def calibrate(model: CropClassifier, crops: CropSet) -> dict[str, Any]:
+    """Fit the logistic calibration on the detector candidates of the calibration clips.
+
+    A candidate is positive when it sits on a drone and its box overlaps the drone's annotated
+    box at IoU >= 0.5, the event a drone AP50 counts. Returns the card entry with the
+    expected calibration error before (the raw evidence) and after.
+    """
+    from sklearn.linear_model import LogisticRegression
+
+    candidates = np.isin(crops.sources, [SOURCES.index("global"), SOURCES.index("local")])
+    subset = crops.subset(candidates)
+    logits, quality = predict(model, subset)
+    positive = (subset.labels == 1) & (subset.quality >= 0.5)
+    if positive.all() or not positive.any():
+        raise ValueError(
+            f"cannot calibrate: {int(positive.sum())} of {len(positive)} detector candidates of the calibration "
+            "clips are drones boxed at IoU 0.5; both kinds are needed"
+        )
+    raw = evidence(logits, quality, subset.scores)
+    fit = LogisticRegression(C=100.0, max_iter=2000).fit(np.log(np.clip(raw, 1e-9, 1.0))[:, None], positive)
+    slope, bias = float(fit.coef_[0][0]), float(fit.intercept_[0])
+    if not slope > 0:
+        raise ValueError(f"cannot calibrate: the evidence does not rise with the chance of a drone (slope {slope})")
+    calibrated = Calibration(slope, bias).probability(raw)
+    return {
+        "slope": slope,
+        "bias": bias,
+        "evidence": "P(drone) x predicted IoU x detector score",
+        "fitted_on": "detector candidates of the calibration clips",
+        "candidates": int(len(positive)),
+        "positives": int(positive.sum()),
+        "ece_before": expected_calibration_error(raw, positive),
+        "ece_after": expected_calibration_error(calibrated, positive),
+    }
+
+
+def expected_calibration_error(probability: np.ndarray, outcome: np.ndarray, bins: int = 10) -> float:
+    """Mean |predicted - observed| over equal-width probability bins, weighted by bin size."""
+    edges = np.linspace(0, 1, bins + 1)
+    which = np.clip(np.digitize(probability, edges[1:-1]), 0, bins - 1)
+    total = 0.0
+    for b in range(bins):
+        sel = which == b
+        if sel.any():
+            total += sel.sum() * abs(probability[sel].mean() - outcome[sel].mean())
+    return float(total / max(len(probability), 1))
+
+
+def evaluate(model: CropClassifier, crops: CropSet) -> dict[str, float]:
+    """Accuracy, recall per class and the box-quality error on drones, for the card and the log."""
+    logits, quality = predict(model, crops)
+    predicted = logits.argmax(axis=1)
+    out: dict[str, float] = {"accuracy": float((predicted == crops.labels).mean())}
+    for index, name in enumerate(CLASS_NAMES):
+        sel = crops.labels == index
+        if sel.any():
+            out[f"recall_{name}"] = float((predicted[sel] == index).mean())
+    drones = crops.labels == 1
+    if drones.any():
+        predicted_iou = 1.0 / (1.0 + np.exp(-quality[drones]))
+        out["drone_quality_mean_abs_error"] = float(np.mean(np.abs(predicted_iou - crops.quality[drones])))
+    return out
+
+
+def train_second_stage(
+    config: dict[str, Any], out_dir: Path | None = None, resume: Path | None = None, progress: bool = True
+) -> Path:
+    """Train (or resume) the classifier, calibrate it, export ``second_stage.onnx``; returns the ONNX path."""
+    from gldt_core.detect.shipped import DEFAULT_GLOBAL_MODEL, DEFAULT_LOCAL_MODEL
+    from gldt_core.paths import halmstad_root
+
+    checkpoint = load_resume(resume, config) if resume is not None else None  # before anything is written
+    out = Path(out_dir or config["out_dir"])
+    torch.set_num_threads(int(config["threads"]))
+    data = config["data"]
+    root = Path(data["halmstad_root"] or halmstad_root())
+    spec = CropSpec(**data["crops"])
+    global_model = Path(data["global_model"] or DEFAULT_GLOBAL_MODEL)
+    local_model = Path(data["local_model"] or DEFAULT_LOCAL_MODEL)
+    fit_clips, calibration_clips = split_for_calibration(halmstad_split(root)["train"], int(data["calibration_period"]))
+    crops = build_crops(
+        root, fit_clips + calibration_clips, spec, Path(data["cache_dir"]), global_model, local_model, progress
+    )
+    is_fit = np.isin(np.asarray(crops.clip_names)[crops.clips], fit_clips)
+    fit_set, calibration_set = crops.subset(is_fit), crops.subset(~is_fit)
+
+    fitted = fit_classifier(config, fit_set, calibration_set, out, checkpoint, progress)
+    if fitted is None:
+        return out / "last.pt"
+    model, history = fitted
+    card = {
+        "kind": "second_stage",
+        "classes": list(CLASS_NAMES),
+        "crop_size": CROP_SIZE,
+        "context": CONTEXT,
+        "min_side": MIN_SIDE,
+        "calibration": calibrate(model, calibration_set),
+        "calibration_clip_figures": evaluate(model, calibration_set),
+        "training": {
+            "config": config,
+            "crop_spec": asdict(spec),
+            "fit_clips": fit_clips,
+            "calibration_clips": calibration_clips,
+            "crops": {"fit": len(fit_set), "calibration": len(calibration_set)},
+            "candidate_models": [global_model.name, local_model.name],
+            **history,
+        },
+    }
+    return export_second_stage(model, out / "second_stage.onnx", card)
+
+
+def fit_classifier(
+    config: dict[str, Any],
+    fit_set: CropSet,
+    calibration_set: CropSet,
+    out: Path,
+    checkpoint: dict[str, Any] | None = None,
+    progress: bool = True,
+) -> tuple[CropClassifier, dict[str, Any]] | None:
+    """Train on ``fit_set`` for ``train.epochs`` (from ``checkpoint``'s epoch when given), writing
+    ``out/last.pt`` after every epoch; returns the model and its history, or None when
+    ``train.max_wall_s`` stopped it early (resume from ``last.pt``)."""
+    seed = int(config["seed"])
+    torch.manual_seed(seed)
+    model = CropClassifier(**config["model"])
+    tcfg = config["train"]
+    optimizer = torch.optim.AdamW(model.parameters(), lr=float(tcfg["lr"]), weight_decay=float(tcfg["weight_decay"]))
+    batch = int(tcfg["batch_size"])
+    steps_per_epoch = math.ceil(len(fit_set) / batch)
+    total_steps = int(tcfg["epochs"]) * steps_per_epoch
+    if total_steps < MIN_STEPS:
+        raise ValueError(
+            f"{len(fit_set)} crops in batches of {batch} for {tcfg['epochs']} epochs make {total_steps} steps; "
+            f"the schedule needs at least {MIN_STEPS}"
+        )
+    scheduler = torch.optim.lr_scheduler.OneCycleLR(
+        optimizer, max_lr=float(tcfg["lr"]), total_steps=total_steps, pct_start=0.1
+    )
+    counts = np.bincount(fit_set.labels, minlength=NUM_CLASSES).astype(np.float64)
+    class_weights = torch.tensor(np.sqrt(counts.sum() / np.maximum(counts, 1) / NUM_CLASSES), dtype=torch.float32)
+    epoch, wall_total, log = 0, 0.0, []
+    if checkpoint is not None:
+        if checkpoint.get("total_steps") != total_steps:
+            raise ResumeError(
+                f"cannot resume: the checkpoint was scheduled for {checkpoint.get('total_steps')} steps, "
+                f"this config and crop set give {total_steps}"
+            )
+        try:
+            model.load_state_dict(checkpoint["model"])
+            optimizer.load_state_dict(checkpoint["optimizer"])
+            scheduler.load_state_dict(checkpoint["scheduler"])
+            epoch, wall_total, log = int(checkpoint["epoch"]), float(checkpoint["wall_s"]), list(checkpoint["log"])
+        except (KeyError, RuntimeError, ValueError, TypeError) as error:
+            raise ResumeError(
+                f"cannot resume: the checkpoint's state does not fit ({type(error).__name__}: {error})"
+            ) from None
+    out.mkdir(parents=True, exist_ok=True)
+    max_wall = tcfg.get("max_wall_s")
+    session_start = time.perf_counter()
+    while epoch < int(tcfg["epochs"]):
+        started = time.perf_counter()
+        rng = np.random.default_rng([seed, epoch])  # the data order and augmentation of this epoch
+        order = rng.permutation(len(fit_set))
+        model.train()
+        totals = np.zeros(2)
+        for step in range(steps_per_epoch):
+            idx = np.sort(order[step * batch : (step + 1) * batch])
+            x, geometry = augment(fit_set.crops[idx], fit_set.geometry[idx], rng)
+            logits, quality = model(torch.from_numpy(x), torch.from_numpy(geometry))
+            ce, box = losses(
+                logits,
+                quality,
+                torch.from_numpy(fit_set.labels[idx]),
+                torch.from_numpy(fit_set.quality[idx].astype(np.float32)),
+                class_weights,
+                float(tcfg["quality_weight"]),
+            )
+            optimizer.zero_grad()
+            (ce + box).backward()
+            optimizer.step()
+            scheduler.step()
+            totals += [ce.item(), box.item()]
+        epoch += 1
+        wall_total += time.perf_counter() - started
+        row = {
+            "epoch": epoch,
+            "ce": totals[0] / steps_per_epoch,
+            "quality": totals[1] / steps_per_epoch,
+            "wall_s": round(wall_total, 1),
+        }
+        row.update({f"calibration_{k}": round(v, 4) for k, v in evaluate(model, calibration_set).items()})
+        log.append(row)
+        if progress:
+            print(f"[second-stage] {json.dumps(row)}", flush=True)
+        _save(
+            out / "last.pt",
+            {
+                "kind": "second_stage",
+                "signature": model_signature(config),
+                "config": config,
+                "model": model.state_dict(),
+                "optimizer": optimizer.state_dict(),
+                "scheduler": scheduler.state_dict(),
+                "epoch": epoch,
+                "total_steps": total_steps,
+                "wall_s": wall_total,
+                "log": log,
+            },
+        )
+        if (
+            max_wall is not None
+            and time.perf_counter() - session_start > float(max_wall)
+            and epoch < int(tcfg["epochs"])
+        ):
+            print(f"[second-stage] stopped after epoch {epoch} (max_wall_s); resume with --resume {out / 'last.pt'}")
+            return None
+    return model, {"epochs": epoch, "cpu_seconds_total": round(wall_total, 1), "log": log}
+
+
+def export_second_stage(model: CropClassifier, path: Path, card: dict[str, Any]) -> Path:
+    """Write the ONNX model and its sidecar card; checks onnxruntime against torch first."""
+    import onnxruntime as ort
+
+    model = model.eval()
+    tmp = path.with_name(path.name + ".tmp")
+    example = (torch.rand(3, 6, CROP_SIZE, CROP_SIZE) * 255, torch.randn(3, 4) * 0.3)
+    with torch.no_grad():
+        torch.onnx.export(
+            model,
+            example,
+            str(tmp),
+            input_names=["crops", "geometry"],
+            output_names=["class_logits", "quality_logit"],
+            dynamic_axes={n: {0: "n"} for n in ("crops", "geometry", "class_logits", "quality_logit")},
+            opset_version=17,
+            dynamo=False,
+        )
+        expected = [t.numpy() for t in model(*example)]
+    session = ort.InferenceSession(str(tmp), providers=["CPUExecutionProvider"])
+    got = session.run(None, {"crops": example[0].numpy(), "geometry": example[1].numpy()})
+    worst = max(float(np.abs(a - b).max()) for a, b in zip(expected, got))
+    if worst > 1e-3:
+        raise RuntimeError(f"exported second stage differs from torch by {worst}")
+    tmp.replace(path)
+    path.with_suffix(".json").write_text(json.dumps(card, indent=1) + "\n")
+    return path
+
+
+def load_config(path: Path | str) -> dict[str, Any]:
+    """The YAML config over :data:`DEFAULTS`; unknown keys are refused with their path."""
+    import yaml
+
+    from gldt_core.training.train import merge_config
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"config not found: {path}")
+    loaded = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(loaded, dict):
+        raise ValueError(f"{path}: expected a mapping at the top level")
+    return merge_config(json.loads(json.dumps(DEFAULTS)), loaded)

@@ -1,0 +1,162 @@
+"""Training the second stage: resumable to the same weights, calibration, and refusals that overwrite nothing."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from gldt_core.detect.second_stage import CROP_SIZE, SecondStage
+from gldt_core.training.crops import SOURCES, CropSet, label_boxes
+from gldt_core.training.second_stage import (
+    DEFAULTS,
+    ResumeError,
+    calibrate,
+    expected_calibration_error,
+    export_second_stage,
+    fit_classifier,
+    load_config,
+    load_resume,
+    split_for_calibration,
+)
+
+
+def tiny_config(epochs: int = 3) -> dict:
+    config = json.loads(json.dumps(DEFAULTS))
+    config["model"] = {"channels": [4, 4, 8, 8], "hidden": 8}
+    config["train"].update({"epochs": epochs, "batch_size": 16, "lr": 0.01})
+    return config
+
+
+def toy_crops(count: int = 64, seed: int = 0) -> CropSet:
+    """Dark squares of class 1 (drone) and 2 (bird, smaller), background noise otherwise."""
+    rng = np.random.default_rng(seed)
+    crops = rng.integers(140, 180, size=(count, 6, CROP_SIZE, CROP_SIZE)).astype(np.uint8)
+    labels = rng.integers(0, 3, size=count)
+    geometry = np.zeros((count, 4), np.float32)
+    quality = np.zeros(count, np.float32)
+    for i, label in enumerate(labels):
+        # The candidate box is a third of the crop; a drone fills it half the time (IoU 1 or 0.25).
+        geometry[i, 2:] = np.log(1 / 3)
+        if label:
+            half = 8 if label == 1 else 3
+            crops[i, :, 32 - half : 32 + half, 32 - half : 32 + half] = 20
+            quality[i] = rng.choice([1.0, 0.25])
+            geometry[i, 2:] = np.log(2 * half / CROP_SIZE) + (0.0 if quality[i] == 1.0 else np.log(2.0))
+    return CropSet(
+        crops=crops,
+        labels=labels.astype(np.int64),
+        geometry=geometry,
+        quality=quality,
+        scores=rng.uniform(0.01, 0.9, count).astype(np.float32),
+        sources=np.full(count, SOURCES.index("global"), np.int8),
+        clips=np.zeros(count, np.int32),
+        clip_names=["V_DRONE_001"],
+    )
+
+
+def test_a_stopped_and_resumed_run_ends_with_the_same_weights(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    fit, calibration = toy_crops(), toy_crops(24, seed=1)
+    straight = fit_classifier(tiny_config(), fit, calibration, tmp_path / "straight", progress=False)
+    assert straight is not None
+    stopped = tiny_config()
+    stopped["train"]["max_wall_s"] = 0.0  # stops after the first epoch
+    assert fit_classifier(stopped, fit, calibration, tmp_path / "resumed", progress=False) is None
+    checkpoint = load_resume(tmp_path / "resumed" / "last.pt", tiny_config())
+    assert checkpoint["epoch"] == 1
+    resumed = fit_classifier(tiny_config(), fit, calibration, tmp_path / "resumed", checkpoint, progress=False)
+    assert resumed is not None
+    for (name, a), b in zip(straight[0].state_dict().items(), resumed[0].state_dict().values()):
+        assert torch.equal(a, b), name
+    assert resumed[1]["epochs"] == 3 and len(resumed[1]["log"]) == 3
+    assert resumed[1]["cpu_seconds_total"] >= checkpoint["wall_s"]
+
+
+def test_resume_refusals_are_one_line_and_touch_nothing(tmp_path: Path) -> None:
+    with pytest.raises(ResumeError, match="checkpoint not found"):
+        load_resume(tmp_path / "missing.pt", tiny_config())
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"\x80\x02 truncated")
+    with pytest.raises(ResumeError, match="not a readable checkpoint") as error:
+        load_resume(corrupt, tiny_config())
+    assert "\n" not in str(error.value)
+    short = tiny_config(1)
+    short["train"]["batch_size"] = 4
+    fit_classifier(short, toy_crops(48), toy_crops(8), tmp_path / "run", progress=False)
+    good = tmp_path / "run" / "last.pt"
+    before = good.read_bytes()
+    other = json.loads(json.dumps(short))
+    other["model"]["hidden"] = 16
+    with pytest.raises(ResumeError, match="the config asks for"):
+        load_resume(good, other)
+    longer = json.loads(json.dumps(short))
+    longer["train"]["epochs"] = 5
+    with pytest.raises(ResumeError, match="scheduled for"):
+        fit_classifier(longer, toy_crops(48), toy_crops(8), tmp_path / "elsewhere", load_resume(good, longer))
+    with pytest.raises(ValueError, match="the schedule needs at least"):
+        fit_classifier(tiny_config(1), toy_crops(16), toy_crops(8), tmp_path / "elsewhere")
+    assert good.read_bytes() == before and not (tmp_path / "elsewhere").exists()
+
+
+def test_the_cli_refuses_a_bad_resume_before_building_anything(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    from gldt_core.cli import main
+
+    config = tmp_path / "c.yaml"
+    config.write_text("train: {epochs: 1}\n")
+    assert main(["train", "second-stage", "--config", str(config), "--resume", str(tmp_path / "no.pt")]) != 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "checkpoint not found" in err[0]
+    with pytest.raises(ValueError, match="unknown config key"):
+        bad = tmp_path / "bad.yaml"
+        bad.write_text("train: {epoch: 1}\n")
+        load_config(bad)
+
+
+def test_calibration_lowers_the_calibration_error_and_exports_a_usable_model(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    fitted = fit_classifier(tiny_config(4), toy_crops(96), toy_crops(32, 1), tmp_path, progress=False)
+    assert fitted is not None
+    calibration_set = toy_crops(64, seed=2)
+    entry = calibrate(fitted[0], calibration_set)
+    assert entry["ece_after"] <= entry["ece_before"] + 1e-9
+    path = export_second_stage(fitted[0], tmp_path / "second_stage.onnx", {"calibration": entry})
+    stage = SecondStage(path, score_threshold=0.0)
+    frame = np.full((128, 128, 3), 160, np.uint8)
+    frame[56:72, 56:72] = 20
+    rows = stage.rescore(frame, frame, np.array([[58.0, 58, 70, 70, 0.4, 1]]))
+    assert rows.shape == (1, 9)
+    np.testing.assert_allclose(rows[0, :4], [58, 58, 70, 70])
+
+
+def test_expected_calibration_error_of_a_perfect_and_a_wrong_forecast() -> None:
+    outcome = np.array([0, 0, 1, 1], bool)
+    assert expected_calibration_error(outcome.astype(float), outcome) == 0.0
+    assert expected_calibration_error(1.0 - outcome, outcome) == pytest.approx(1.0)
+
+
+def test_labels_come_from_the_object_a_candidate_sits_on() -> None:
+    gt = np.array([[100.0, 100, 140, 130], [300, 300, 320, 320]])
+    classes = np.array([1, 2])
+    boxes = np.array(
+        [
+            [105.0, 105, 130, 125],  # on the drone: drone
+            [302, 302, 318, 318],  # on the bird: bird
+            [10, 10, 30, 30],  # nowhere: background
+            [128, 118, 158, 148],  # grazing the drone: left out
+        ]
+    )
+    labels, quality = label_boxes(boxes, gt, classes)
+    assert labels.tolist() == [1, 2, 0, -1]
+    assert quality[0] == pytest.approx(25 * 20 / (40 * 30))  # its IoU with the drone's box
+    assert quality[1] == pytest.approx(16 * 16 / (20 * 20)) and quality[2] == 0.0
+
+
+def test_calibration_clips_are_every_fifth_of_each_category() -> None:
+    clips = [f"V_DRONE_{i:03d}" for i in range(10)] + [f"V_BIRD_{i:03d}" for i in range(5)]
+    fit, calibration = split_for_calibration(clips, 5)
+    assert calibration == ["V_BIRD_000", "V_DRONE_000", "V_DRONE_005"]
+    assert sorted(fit + calibration) == sorted(clips)
