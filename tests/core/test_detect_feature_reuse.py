@@ -117,33 +117,33 @@ def _copy_model(tmp_path: Path) -> Path:
 def test_missing_split_files_are_an_error_only_when_asked_for(tmp_path: Path) -> None:
     model = _copy_model(tmp_path)
     features_path(model).unlink()
-    assert GlobalDetector(model, num_threads=1).feature_reuse is None  # auto: the full model
+    assert GlobalDetector(model, second_stage=None, num_threads=1).feature_reuse is None  # auto: the full model
     with pytest.raises(DetectorConfigError, match=r"global_amyolo\.features\.onnx not found.*--feature-reuse"):
-        GlobalDetector(model, num_threads=1, feature_reuse=True)
+        GlobalDetector(model, second_stage=None, num_threads=1, feature_reuse=True)
 
 
 def test_a_split_pair_made_from_another_model_is_never_used(tmp_path: Path, caplog) -> None:
     model = _copy_model(tmp_path)
     frame = bag_frames(REAL_BAG, 1)[0]
-    expected = GlobalDetector(model, num_threads=1, feature_reuse=False).detect(frame, frame)
+    expected = GlobalDetector(model, second_stage=None, num_threads=1, feature_reuse=False).detect(frame, frame)
     # A re-exported model (here: the same graph with another producer string) has another hash.
     onnx = pytest.importorskip("onnx")
     proto = onnx.load(str(model))
     proto.producer_version = proto.producer_version + "-reexported"
     onnx.save(proto, str(model))
     with caplog.at_level("WARNING", logger="gldt.detect"):
-        stale = GlobalDetector(model, num_threads=1)
+        stale = GlobalDetector(model, second_stage=None, num_threads=1)
     assert stale.feature_reuse is None and "made from another version" in caplog.text
     np.testing.assert_array_equal(stale.detect(frame, frame), expected)
     with pytest.raises(DetectorConfigError, match="another version.*--feature-reuse"):
-        GlobalDetector(model, num_threads=1, feature_reuse=True)
+        GlobalDetector(model, second_stage=None, num_threads=1, feature_reuse=True)
     # A swapped reuse model is caught by its own hash.
     second = tmp_path / "second"
     second.mkdir()
     model = _copy_model(second)
     reuse_path(model).write_bytes(reuse_path(model).read_bytes() + b"\0")
     with pytest.raises(DetectorConfigError, match="is not the file"):
-        GlobalDetector(model, num_threads=1, feature_reuse=True)
+        GlobalDetector(model, second_stage=None, num_threads=1, feature_reuse=True)
 
 
 def test_the_shipped_split_files_are_what_the_export_writes_today(tmp_path: Path) -> None:
@@ -173,12 +173,12 @@ def test_unreadable_split_files_fall_back_to_the_full_model_unless_required(tmp_
     model = _copy_model(tmp_path)
     features_path(model).write_text("version https://git-lfs.github.com/spec/v1\noid sha256:0\nsize 1\n")
     with caplog.at_level("WARNING", logger="gldt.detect"):
-        detector = GlobalDetector(model, num_threads=1)
+        detector = GlobalDetector(model, second_stage=None, num_threads=1)
     assert detector.feature_reuse is None and "cannot use global_amyolo.features.onnx" in caplog.text
     frame = bag_frames(REAL_BAG, 1)[0]
     assert len(detector.detect(frame, frame)) > 0
     with pytest.raises(DetectorConfigError, match="cannot use global_amyolo.features.onnx"):
-        GlobalDetector(model, num_threads=1, feature_reuse=True)
+        GlobalDetector(model, second_stage=None, num_threads=1, feature_reuse=True)
 
 
 def test_contract_errors_are_clear() -> None:
@@ -227,4 +227,4 @@ def test_a_model_written_over_gets_its_split_pair_refreshed(tmp_path: Path, caps
     onnx.save(proto, str(model))
     _refresh_or_drop_split_pair(model)
     assert "wrote global_amyolo.features.onnx" in capsys.readouterr().out
-    assert GlobalDetector(model, num_threads=1, feature_reuse=True).feature_reuse is not None
+    assert GlobalDetector(model, second_stage=None, num_threads=1, feature_reuse=True).feature_reuse is not None

@@ -42,7 +42,7 @@ def test_clips_used_here_are_held_out() -> None:
 
 
 def test_local_detector_finds_the_drone_in_an_roi_around_it() -> None:
-    detector = LocalDetector(score_threshold=0.25, num_threads=1)
+    detector = LocalDetector(num_threads=1)  # the default threshold: 0.5 of the calibrated probability
     hits = extra = total = 0
     for clip in CLIPS:
         for _, frame, gt in sampled_frames(clip):
@@ -57,12 +57,13 @@ def test_local_detector_finds_the_drone_in_an_roi_around_it() -> None:
             hits += int(matched)
             extra += len(dets) - int(matched)
     assert total == 20
-    assert hits >= 14, f"local detector found {hits}/{total} drones"
-    assert extra <= 2
+    # With the second stage at its default threshold: 18 of 20 and 4 second boxes (2026-12-03).
+    assert hits >= 16, f"local detector found {hits}/{total} drones"
+    assert extra <= 4
 
 
 def test_global_detector_finds_drones_in_full_frames() -> None:
-    detector = GlobalDetector(score_threshold=0.25, num_threads=1)
+    detector = GlobalDetector(num_threads=1)  # the default threshold: 0.5 of the calibrated probability
     hits = extra = total = 0
     for clip in CLIPS:
         for previous, frame, gt in sampled_frames(clip):
@@ -75,5 +76,6 @@ def test_global_detector_finds_drones_in_full_frames() -> None:
     assert total == 20
     # The shipped CPU-trained model is far from the paper's numbers (see its model card); this
     # guards against regressions in the model, export or the runtime mapping, not a target.
-    assert hits >= 10, f"global detector found {hits}/{total} drones"
-    assert extra <= 3
+    # With the second stage at its default threshold: 18 of 20 and 3 second boxes (2026-12-03).
+    assert hits >= 16, f"global detector found {hits}/{total} drones"
+    assert extra <= 4

@@ -75,13 +75,13 @@ def test_card_is_written_and_embedded(exported) -> None:
 def test_runtime_wrappers_load_exported_models(exported) -> None:
     _, gpath = exported["global"]
     _, lpath = exported["local"]
-    gd = GlobalDetector(gpath, score_threshold=0.0)
+    gd = GlobalDetector(gpath, score_threshold=0.0, second_stage=None)
     dets = gd.detect(np.zeros((100, 150, 3), np.uint8), np.zeros((100, 150, 3), np.uint8))
-    assert dets.dtype == np.float32 and dets.shape[1] == 6
-    ld = LocalDetector(lpath)
+    assert dets.dtype == np.float32 and dets.shape[1] == 9
+    ld = LocalDetector(lpath, second_stage=None)
     assert ld.input_side == 64
     with pytest.raises(DetectorConfigError, match="local detector needs one"):
-        LocalDetector(gpath)
+        LocalDetector(gpath, second_stage=None)
 
 
 @pytest.mark.skipif(

@@ -30,8 +30,8 @@ def test_int8_local_model_finds_the_same_drone(tmp_path: Path) -> None:
     cap.release()
     x, y, w, h = gt[(gt[:, 0] == 60) & (gt[:, 7] == 1)][0, 2:6]
     roi = np.array([[x + w / 2 - 150, y + h / 2 - 150, x + w / 2 + 150, y + h / 2 + 150]]).round()
-    fp32 = LocalDetector(score_threshold=0.25, num_threads=1).detect_rois(frame, roi)
-    int8 = LocalDetector(out, score_threshold=0.25, num_threads=1).detect_rois(frame, roi)
+    fp32 = LocalDetector(score_threshold=0.25, num_threads=1, second_stage=None).detect_rois(frame, roi)
+    int8 = LocalDetector(out, score_threshold=0.25, num_threads=1, second_stage=None).detect_rois(frame, roi)
     assert len(fp32) and len(int8)
     assert box_iou(fp32[:1, :4], int8[:1, :4])[0, 0] > 0.7
     assert int8[0, 5] == fp32[0, 5]
@@ -53,4 +53,4 @@ def test_int8_export_over_am_yolo_drops_the_split_pair_it_made_stale(tmp_path: P
     _refresh_or_drop_split_pair(model)
     assert "removed global_amyolo.features.onnx and global_amyolo.reuse.onnx" in capsys.readouterr().out
     assert not features_path(model).exists() and not reuse_path(model).exists()
-    assert GlobalDetector(model, num_threads=1).feature_reuse is None
+    assert GlobalDetector(model, second_stage=None, num_threads=1).feature_reuse is None

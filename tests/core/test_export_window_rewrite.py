@@ -120,10 +120,8 @@ def test_a_model_without_the_pattern_is_left_alone() -> None:
 @pytest.mark.parametrize("name", ["global_amyolo", "global_amyolo_balanced"])
 def test_shipped_am_yolo_models_hold_no_six_dim_window_permutes(name: str) -> None:
     model = onnx.load(str(MODELS_DIR / f"{name}.onnx"))
+    # Exported since training/stff.py writes 4-D window permutes, or an older export rewritten.
     assert _six_dim_transposes(model) == 0
-    assert any(node.op_type == "Transpose" and "window4d" in node.name for node in model.graph.node)
-    card = json.loads((MODELS_DIR / f"{name}.json").read_text())
-    assert "rewritten" in card["window_transposes"]
 
 
 def test_rewrite_file_writes_model_and_card(tmp_path: Path) -> None:

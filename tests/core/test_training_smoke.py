@@ -26,7 +26,7 @@ def data_cache(tmp_path_factory) -> Path:
 
 def tiny_config(task: str, cache_dir: Path) -> dict:
     """The shipped config's schema, shrunk to seconds: one synthetic scene, two steps."""
-    from gldt_core.training.train import DEFAULTS, _merge
+    from gldt_core.training.train import DEFAULTS, merge_config
 
     override = {
         "threads": 1,
@@ -52,7 +52,7 @@ def tiny_config(task: str, cache_dir: Path) -> dict:
         override["model"].update({"dual_frame": True, "stff_levels": [2], "stff_windows": [4]})
     else:
         override["model"].update({"dual_frame": False, "stff_levels": [], "stff_windows": []})
-    return _merge(DEFAULTS, override)
+    return merge_config(DEFAULTS, override)
 
 
 @pytest.mark.parametrize("task", ["global", "local"])

@@ -146,7 +146,10 @@ class GlobalDetector(OnnxDetector):
             score_threshold=self.score_threshold,
             classes=self.classes,
         )
-        self.decode_threshold = SecondStage.CANDIDATE_SCORE if self.second_stage else self.score_threshold
+        # Candidates go to the second stage from a low detector score (never above the threshold asked for).
+        self.decode_threshold = (
+            min(SecondStage.CANDIDATE_SCORE, self.score_threshold) if self.second_stage else self.score_threshold
+        )
         self.feature_reuse: FeatureReuse | None = None
         if split_first or (optimize_graph and feature_reuse):  # required but absent: a clear error
             self.feature_reuse = load_feature_reuse(self.model_path, providers, num_threads, feature_reuse)

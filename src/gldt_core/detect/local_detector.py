@@ -91,7 +91,10 @@ class LocalDetector(OnnxDetector):
             score_threshold=self.score_threshold,
             classes=self.classes,
         )
-        self.decode_threshold = SecondStage.CANDIDATE_SCORE if self.second_stage else self.score_threshold
+        # Candidates go to the second stage from a low detector score (never above the threshold asked for).
+        self.decode_threshold = (
+            min(SecondStage.CANDIDATE_SCORE, self.score_threshold) if self.second_stage else self.score_threshold
+        )
 
     @staticmethod
     def _check_rois(rois: np.ndarray, frame_w: int, frame_h: int) -> np.ndarray:
