@@ -134,3 +134,25 @@ def test_halmstad_split_is_disjoint_and_holds_out_two_in_five() -> None:
     assert split["val_b"] == ["V_DRONE_004", "V_DRONE_009", "V_BIRD_004"]
     with pytest.raises(ValueError, match="not a Halmstad clip"):
         split_clips(["clip1"])
+
+
+def test_nms_can_also_drop_a_box_nested_in_a_better_one() -> None:
+    boxes = np.array([[100.0, 100, 180, 140], [120, 110, 160, 130], [300, 300, 320, 320]])
+    scores = np.array([0.9, 0.8, 0.7])
+    # IoU of the inner box with the outer one is 0.25: plain NMS keeps both.
+    assert nms(boxes, scores, 0.5).tolist() == [0, 1, 2]
+    assert nms(boxes, scores, 0.5, nested_threshold=0.8).tolist() == [0, 2]
+    # Nested the other way round (the inner box scores higher): the outer one goes.
+    assert nms(boxes, np.array([0.8, 0.9, 0.7]), 0.5, nested_threshold=0.8).tolist() == [1, 2]
+
+
+def test_letterbox_pads_rather_than_enlarges_past_max_scale() -> None:
+    crop = np.full((142, 142, 3), 200, np.uint8)
+    image, mapping = letterbox(crop, 256, 256, max_scale=256 / 300)
+    assert image.shape == (256, 256, 3) and mapping.scale == pytest.approx(256 / 300)
+    inside = int(round(142 * 256 / 300))
+    assert (image[mapping.pad_y : mapping.pad_y + inside, mapping.pad_x : mapping.pad_x + inside] == 200).all()
+    assert image[0, 0, 0] != 200  # padding
+    assert letterbox(np.zeros((600, 600, 3), np.uint8), 256, 256, max_scale=256 / 300)[1].scale == pytest.approx(
+        256 / 600
+    )

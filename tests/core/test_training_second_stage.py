@@ -160,3 +160,16 @@ def test_calibration_clips_are_every_fifth_of_each_category() -> None:
     fit, calibration = split_for_calibration(clips, 5)
     assert calibration == ["V_BIRD_000", "V_DRONE_000", "V_DRONE_005"]
     assert sorted(fit + calibration) == sorted(clips)
+
+
+def test_the_committed_checkpoint_resumes_under_the_shipped_config_and_matches_the_card() -> None:
+    from gldt_core.detect.second_stage import classifier_path_for
+    from gldt_core.detect.shipped import DEFAULT_GLOBAL_MODEL
+    from gldt_core.paths import REPO_ROOT
+
+    config = load_config(REPO_ROOT / "src/gldt_core/configs/train/second_stage.yaml")
+    checkpoint = load_resume(REPO_ROOT / "checkpoints/second_stage.pt", config)
+    assert checkpoint["epoch"] == config["train"]["epochs"]
+    card = json.loads(classifier_path_for(DEFAULT_GLOBAL_MODEL).with_suffix(".json").read_text())
+    assert card["training"]["cpu_seconds_total"] == pytest.approx(checkpoint["wall_s"], abs=0.1)
+    assert (REPO_ROOT / "checkpoints/second_stage.pt").stat().st_size < 15 * 1024 * 1024

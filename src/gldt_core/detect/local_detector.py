@@ -82,6 +82,9 @@ class LocalDetector(OnnxDetector):
             )
         self.input_name = model_input.name
         self.input_side = int(h)
+        # The scale the model learned its objects at (an ROI of ``roi_side`` px to the input):
+        # smaller ROIs are padded, not enlarged, so their targets keep that size.
+        self.max_scale = self.input_side / float(self.card.get("roi_side", self.input_side))
         self._read_classes(classes)
         self.max_detections_per_roi = int(max_detections_per_roi)
         self.second_stage = load_second_stage(
@@ -162,7 +165,7 @@ class LocalDetector(OnnxDetector):
             previous = crop if previous_crops is None else ensure_bgr(previous_crops[index], "previous ROI crop")
             if previous.shape != crop.shape:
                 raise ValueError(f"previous crop of shape {previous.shape[:2]} does not match its ROI {roi.tolist()}")
-            image, mapping = letterbox(crop, side, side)
+            image, mapping = letterbox(crop, side, side, self.max_scale)
             inputs.append(image)
             mappings.append(mapping)
             pairs.append((previous, crop))

@@ -40,10 +40,17 @@ def rect_input_size(frame_w: int, frame_h: int, long_side: int, multiple: int) -
     return max(w, multiple), max(h, multiple)
 
 
-def letterbox(image: np.ndarray, input_w: int, input_h: int) -> tuple[np.ndarray, Letterbox]:
-    """Resize keeping aspect ratio and pad (centred) to ``input_w x input_h``; returns image and mapping."""
+def letterbox(
+    image: np.ndarray, input_w: int, input_h: int, max_scale: float | None = None
+) -> tuple[np.ndarray, Letterbox]:
+    """Resize keeping aspect ratio and pad (centred) to ``input_w x input_h``; returns image and mapping.
+
+    ``max_scale`` caps the resize factor: an image smaller than the input is then padded rather
+    than enlarged beyond it (the local detector's objects keep the size it learned them at)."""
     h, w = image.shape[:2]
     scale = min(input_w / w, input_h / h)
+    if max_scale is not None:
+        scale = min(scale, max_scale)
     new_w, new_h = max(int(round(w * scale)), 1), max(int(round(h * scale)), 1)
     if (new_w, new_h) != (w, h):
         # Area averaging only for strong reductions (a 1080p frame to 640 wide, where it avoids
@@ -81,8 +88,14 @@ def ensure_bgr(frame: np.ndarray, name: str = "frame") -> np.ndarray:
     return frame
 
 
-def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:
-    """Greedy non-maximum suppression; returns kept indices sorted by descending score."""
+def nms(
+    boxes: np.ndarray, scores: np.ndarray, iou_threshold: float, nested_threshold: float | None = None
+) -> np.ndarray:
+    """Greedy non-maximum suppression; returns kept indices sorted by descending score.
+
+    With ``nested_threshold``, a box is also suppressed when more than that share of the smaller
+    of it and a kept box lies inside the other (one box nested in another: a part of the object,
+    or the object with its surroundings), whatever their IoU."""
     if len(boxes) == 0:
         return np.zeros(0, dtype=np.int64)
     x1, y1, x2, y2 = boxes[:, 0], boxes[:, 1], boxes[:, 2], boxes[:, 3]
@@ -97,7 +110,10 @@ def nms(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarr
         h = np.clip(np.minimum(y2[i], y2[rest]) - np.maximum(y1[i], y1[rest]), 0, None)
         inter = w * h
         iou = inter / np.maximum(areas[i] + areas[rest] - inter, 1e-9)
-        order = rest[iou <= iou_threshold]
+        keep_rest = iou <= iou_threshold
+        if nested_threshold is not None:
+            keep_rest &= inter / np.maximum(np.minimum(areas[i], areas[rest]), 1e-9) <= nested_threshold
+        order = rest[keep_rest]
     return np.asarray(keep, dtype=np.int64)
 
 

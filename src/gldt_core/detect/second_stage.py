@@ -158,7 +158,10 @@ class SecondStage:
     probability of the tracked ``classes``, ``class_id`` the most probable of the tracked classes
     (a box is a drone when its drone probability passes), then the probabilities of the three
     object classes given that it is an object (they sum to 1: the evidence a track gathers).
-    Rows under ``score_threshold`` are dropped, and duplicates removed by NMS, pair by pair.
+    Rows under ``score_threshold`` are dropped, and duplicates removed by NMS, pair by pair: at
+    IoU ``nms_iou``, and a box nested in a better one (``nested_threshold`` of the smaller box
+    inside the other; the classifier calls a part of a drone, or a drone with sky around it, a
+    drone too, and the tracker would follow each as a target).
     """
 
     EXPECTATION = (
@@ -180,6 +183,7 @@ class SecondStage:
         classes: Sequence[int] | None = (1,),
         max_candidates: int = 12,
         nms_iou: float = 0.5,
+        nested_threshold: float | None = 0.8,
     ) -> None:
         path = Path(model_path)
         if not path.is_file():
@@ -208,6 +212,7 @@ class SecondStage:
             raise DetectorConfigError(f"second stage: max_candidates must be >= 1, got {max_candidates!r}")
         self.max_candidates = int(max_candidates)
         self.nms_iou = float(nms_iou)
+        self.nested_threshold = nested_threshold
         self.last_seconds = 0.0
 
     def classify(self, crops: np.ndarray, geometry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -262,7 +267,7 @@ class SecondStage:
                 mine = rows[item_of[picked_all] == i]
                 mine = mine[mine[:, 4] >= self.score_threshold]
                 if len(mine):
-                    mine = mine[nms(mine[:, :4], mine[:, 4], self.nms_iou)]
+                    mine = mine[nms(mine[:, :4], mine[:, 4], self.nms_iou, self.nested_threshold)]
                 results[i] = mine.astype(np.float32)
         self.last_seconds = time.perf_counter() - start
         return results

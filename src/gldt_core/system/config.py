@@ -14,7 +14,7 @@ Example (every key shown with its default)::
       global_model: null      # path to an ONNX file; null = the shipped model
                               # (a relative path: beside this YAML, else from the working directory)
       local_model: null
-      score_threshold: 0.1    # null = the detector's own default (0.25)
+      score_threshold: 0.1    # null = the detector's own default (0.5 calibrated; 0.25 without second stage)
       providers: [CPUExecutionProvider]
       classes: [1]            # MOT class codes to detect and track (1 drone, 2 bird, 3 airplane); null = all
       nms_iou: 0.5            # duplicate removal across overlapping ROIs
@@ -25,8 +25,8 @@ Example (every key shown with its default)::
     tracker:
       name: jptrack           # or bytetrack
       params: {}              # for the named tracker's config
-      jptrack: {t_h: 0.25, new_track_thresh: 0.25}   # per-tracker parameters (see SHIPPED_DETECTOR_SCORES)
-      bytetrack: {track_thresh: 0.25, new_track_thresh: 0.25}
+      jptrack: {t_h: 0.5, new_track_thresh: 0.5}   # per-tracker parameters (see SHIPPED_DETECTOR_SCORES)
+      bytetrack: {track_thresh: 0.5, new_track_thresh: 0.5}
     track_lost_frames: null   # keep an ROI on a lost track this many frames; null = n_miss
 """
 
@@ -44,23 +44,24 @@ from gldt_core.schedule.scheduler import SchedulerConfig
 
 TRACKER_NAMES = ("jptrack", "bytetrack")
 
-#: Score thresholds matched to the shipped detectors. ByteTrack's 0.5 (high) / 0.6 (new track)
-#: assume a detector trained to convergence; the small CPU-trained models shipped here are
-#: under-confident and score most drones they find well below 0.5. The tracker classes keep the
-#: paper's defaults; the GL-DT system, which knows which detector feeds them, lowers the high and
-#: the new-track thresholds to 0.25 (low stays 0.1), and lets the detectors report down to 0.1
-#: (:data:`SHIPPED_DETECTOR_SCORE_THRESHOLD`). The values were chosen with `gldt bench thresholds`
-#: on validation clips that the ablation does not report on, so the ablation's figures are not
-#: tuned on their own clips; the runs are in `docs/experiment-log.md`.
+#: Score thresholds matched to the shipped detectors. With the second stage, a detection's score
+#: is the calibrated probability that it is a drone boxed at IoU 0.5
+#: (:mod:`gldt_core.detect.second_stage`), so one number means the same everywhere: a detection
+#: may start or extend a track at the first association stage when it is more likely a drone than
+#: not (0.5, the detectors' own default threshold), and the detectors report down to 0.1 for the
+#: trackers' second, low-score stage. The values were checked with `gldt bench thresholds` on
+#: validation clips that the ablation does not report on (docs/experiment-log.md). Without the
+#: second stage (``detector.second_stage: null``) the raw detector scores are under-confident and
+#: the former 0.25 fits them (``configs/run/no_second_stage.yaml``).
 SHIPPED_DETECTOR_SCORES: dict[str, dict[str, float]] = {
-    "jptrack": {"t_h": 0.25, "new_track_thresh": 0.25},
-    "bytetrack": {"track_thresh": 0.25, "new_track_thresh": 0.25},
+    "jptrack": {"t_h": 0.5, "new_track_thresh": 0.5},
+    "bytetrack": {"track_thresh": 0.5, "new_track_thresh": 0.5},
 }
 
 #: Lowest score the GL-DT system's detectors report: the trackers' low threshold (``t_l`` 0.1).
 #: ByteTrack-style matching keeps a track alive through frames where its target scores between
 #: the low and the high threshold; a detector that drops those boxes itself (its own default is
-#: 0.25) leaves that second association stage empty.
+#: 0.5) leaves that second association stage empty.
 SHIPPED_DETECTOR_SCORE_THRESHOLD = 0.1
 
 
