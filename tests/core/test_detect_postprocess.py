@@ -156,3 +156,19 @@ def test_letterbox_pads_rather_than_enlarges_past_max_scale() -> None:
     assert letterbox(np.zeros((600, 600, 3), np.uint8), 256, 256, max_scale=256 / 300)[1].scale == pytest.approx(
         256 / 600
     )
+
+
+def test_the_system_drops_nested_detections_before_the_tracker_and_keeps_their_columns() -> None:
+    from gldt_core.system.steps import drop_nested
+
+    rows = np.array(
+        [
+            [100.0, 100, 180, 140, 0.6, 1, 0.9, 0.1, 0.0],
+            [120, 110, 160, 130, 0.8, 1, 0.8, 0.2, 0.0],
+            [0, 0, 9, 9, 0.2, 1, 1, 0, 0],
+        ]
+    )
+    kept = drop_nested(rows, 0.8)
+    np.testing.assert_array_equal(kept, rows[1:])  # the outer box goes; order and columns stay
+    np.testing.assert_array_equal(drop_nested(rows, None), rows)
+    np.testing.assert_array_equal(drop_nested(rows, 1.0), rows)

@@ -158,10 +158,10 @@ class SecondStage:
     probability of the tracked ``classes``, ``class_id`` the most probable of the tracked classes
     (a box is a drone when its drone probability passes), then the probabilities of the three
     object classes given that it is an object (they sum to 1: the evidence a track gathers).
-    Rows under ``score_threshold`` are dropped, and duplicates removed by NMS, pair by pair: at
-    IoU ``nms_iou``, and a box nested in a better one (``nested_threshold`` of the smaller box
-    inside the other; the classifier calls a part of a drone, or a drone with sky around it, a
-    drone too, and the tracker would follow each as a target).
+    Rows under ``score_threshold`` are dropped, and duplicates removed by NMS at IoU ``nms_iou``,
+    pair by pair (with ``nested_threshold``, also a box nested in a better one; the GL-DT system
+    does that before its tracker instead, :func:`gldt_core.system.steps.drop_nested`, since for
+    a detection metric the well-placed box under a better-scored nested one is worth keeping).
     """
 
     EXPECTATION = (
@@ -183,7 +183,7 @@ class SecondStage:
         classes: Sequence[int] | None = (1,),
         max_candidates: int = 12,
         nms_iou: float = 0.5,
-        nested_threshold: float | None = 0.8,
+        nested_threshold: float | None = None,
     ) -> None:
         path = Path(model_path)
         if not path.is_file():

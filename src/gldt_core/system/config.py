@@ -18,6 +18,7 @@ Example (every key shown with its default)::
       providers: [CPUExecutionProvider]
       classes: [1]            # MOT class codes to detect and track (1 drone, 2 bird, 3 airplane); null = all
       nms_iou: 0.5            # duplicate removal across overlapping ROIs
+      nested_threshold: 0.8   # drop a box nested in a better one (share of the smaller inside); null = keep
       feature_reuse: null     # AM-YOLO's split pair (gldt export --feature-reuse):
                               # null = when present, false = never, true = required
       second_stage: beside    # crop classifier re-scoring both detectors' candidates:
@@ -82,6 +83,7 @@ class DetectorSettings:
     providers: tuple[str, ...] = ("CPUExecutionProvider",)
     classes: tuple[int, ...] | None = (1,)
     nms_iou: float = 0.5
+    nested_threshold: float | None = 0.8
     feature_reuse: bool | None = None
     second_stage: str | None = "beside"
 
@@ -90,6 +92,8 @@ class DetectorSettings:
             raise ValueError(f"detector.score_threshold must be in [0, 1], got {self.score_threshold!r}")
         if not 0.0 < self.nms_iou <= 1.0:
             raise ValueError(f"detector.nms_iou must be in (0, 1], got {self.nms_iou!r}")
+        if self.nested_threshold is not None and not 0.0 < self.nested_threshold <= 1.0:
+            raise ValueError(f"detector.nested_threshold must be in (0, 1] or null, got {self.nested_threshold!r}")
         if not self.providers:
             raise ValueError("detector.providers must name at least one onnxruntime provider")
 
@@ -159,6 +163,7 @@ _DETECTOR_KEYS = {
     "providers": list,
     "classes": list,
     "nms_iou": float,
+    "nested_threshold": float,
     "feature_reuse": bool,
     "second_stage": str,
 }
@@ -215,7 +220,7 @@ def config_from_dict(data: Mapping[str, Any] | None, source: str = "config") -> 
         if det.get("classes") is not None:
             det["classes"] = tuple(int(c) for c in det["classes"])
         # null is meaningful for these keys (shipped model / every class), so it is kept.
-        keep_null = ("global_model", "local_model", "score_threshold", "classes", "second_stage")
+        keep_null = ("global_model", "local_model", "score_threshold", "classes", "second_stage", "nested_threshold")
         detector = DetectorSettings(**{k: v for k, v in det.items() if v is not None or k in keep_null})
         tracker = TrackerSettings(**{k: v for k, v in trk.items() if v is not None})
         lost = data.get("track_lost_frames")

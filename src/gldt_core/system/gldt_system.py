@@ -33,6 +33,7 @@ from gldt_core.schedule.scheduler import FramePlan, Mode, ModeScheduler
 from gldt_core.system.config import SystemConfig
 from gldt_core.system.steps import (
     detections_per_roi,
+    drop_nested,
     filter_classes,
     merge_local_detections,
     stable_predictions,
@@ -343,6 +344,7 @@ class GLDTSystem:
                 raw, next_carry = self._detect_global(previous, frame, carry)
                 raw = self._count_invalid(raw, GLOBAL_COLUMNS)
                 raw = filter_classes(raw, GLOBAL_COLUMNS, self.config.detector.classes)
+                raw = drop_nested(raw, self.config.detector.nested_threshold)
             detections = raw[:, :5]
             probabilities = raw[:, GLOBAL_COLUMNS - PROBABILITY_COLUMNS :]
             detection_rois = None
@@ -354,6 +356,7 @@ class GLDTSystem:
             with timer.stage("ld"):
                 raw = self._count_invalid(self._detect_local(previous, frame, plan.rois), LOCAL_COLUMNS)
                 raw = merge_local_detections(raw, self.config.detector.classes, self.config.detector.nms_iou)
+                raw = drop_nested(raw, self.config.detector.nested_threshold)
                 try:
                     counts = detections_per_roi(raw, len(plan.layout))
                 except ValueError as error:

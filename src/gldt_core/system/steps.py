@@ -88,6 +88,18 @@ def merge_local_detections(raw: np.ndarray, classes: Sequence[int] | None, nms_i
     return raw
 
 
+def drop_nested(raw: np.ndarray, nested_threshold: float | None) -> np.ndarray:
+    """Detector rows without the boxes nested in a better-scored one (more than
+    ``nested_threshold`` of the smaller box inside the other; None keeps all).
+
+    The second stage calls a part of a close drone, or the drone with sky around it, a drone too;
+    such boxes overlap the whole one below NMS's IoU and would start tracks of their own."""
+    raw = np.asarray(raw, dtype=np.float64)
+    if nested_threshold is None or len(raw) < 2:
+        return raw
+    return raw[np.sort(nms(raw[:, :4], raw[:, 4], 1.0, nested_threshold))]
+
+
 def detections_per_roi(local_detections: np.ndarray, roi_count: int) -> np.ndarray:
     """How many (merged) local detections each ROI produced, for the scheduler's N_m rule."""
     roi_index = np.asarray(local_detections, dtype=np.float64).reshape(-1, LOCAL_COLUMNS)[:, 6].astype(np.int64)

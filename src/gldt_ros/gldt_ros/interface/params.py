@@ -56,6 +56,13 @@ _SECOND_STAGE = ParamSpec(
     "Crop classifier that re-scores and re-boxes the candidates: beside (second_stage.onnx next to the model), "
     "a path, or none",
 )
+_NESTED = ParamSpec(
+    "nested_threshold",
+    _DETECTOR_DEFAULTS.nested_threshold if _DETECTOR_DEFAULTS.nested_threshold is not None else 1.0,
+    "Drop a detection nested in a better one: share of the smaller box inside the other (1 = keep all)",
+    0.01,
+    1.0,
+)
 _DIAG_PERIOD = ParamSpec("diagnostics_period", 1.0, "Seconds between /diagnostics messages", 0.1, 60.0)
 
 SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
@@ -78,6 +85,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ParamSpec("model_path", "", "AM-YOLO ONNX file; empty = the model shipped with gldt_core"),
         _SCORE_THRESHOLD,
         _SECOND_STAGE,
+        _NESTED,
         ParamSpec(
             "classes",
             _CLASSES_DEFAULT,
@@ -104,6 +112,7 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ParamSpec("model_path", "", "Local P2 ONNX file; empty = the model shipped with gldt_core"),
         _SCORE_THRESHOLD,
         _SECOND_STAGE,
+        _NESTED,
         ParamSpec(
             "classes",
             _CLASSES_DEFAULT,

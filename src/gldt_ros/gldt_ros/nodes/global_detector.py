@@ -21,7 +21,7 @@ from gldt_msgs.msg import Detection, DetectionArray, FramePair
 from gldt_core.detect import GlobalCarry, GlobalDetector
 from gldt_core.detect.postprocess import Letterbox
 from gldt_core.detect.second_stage import GLOBAL_COLUMNS
-from gldt_core.system.steps import filter_classes
+from gldt_core.system.steps import drop_nested, filter_classes
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr
 from gldt_ros.interface.params import detector_kwargs, parse_classes
@@ -94,7 +94,9 @@ class GlobalDetectorNode(GldtNode):
             previous, current, letterbox, int(pair.full_width), int(pair.full_height), previous_features
         )
         self.last_pair, self.last_pair_index = GlobalCarry(current, current_features), int(pair.frame_index)
-        detections = filter_classes(raw, GLOBAL_COLUMNS, self.classes)
+        detections = drop_nested(
+            filter_classes(raw, GLOBAL_COLUMNS, self.classes), float(self.param("nested_threshold"))
+        )
         self.publisher.publish(
             DetectionArray(
                 header=pair.header,

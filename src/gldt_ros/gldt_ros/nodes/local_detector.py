@@ -13,7 +13,7 @@ from typing import Any
 from gldt_msgs.msg import Detection, DetectionArray, RoiCrops
 
 from gldt_core.detect import LocalDetector
-from gldt_core.system.steps import merge_local_detections
+from gldt_core.system.steps import drop_nested, merge_local_detections
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr, msgs_to_rois
 from gldt_ros.interface.params import detector_kwargs, parse_classes
@@ -38,6 +38,7 @@ class LocalDetectorNode(GldtNode):
             crops, rois, int(message.full_width), int(message.full_height), previous_crops=previous
         )
         detections = merge_local_detections(raw, self.classes, float(self.param("nms_iou")))
+        detections = drop_nested(detections, float(self.param("nested_threshold")))
         self.publisher.publish(
             DetectionArray(
                 header=message.header,
