@@ -55,6 +55,14 @@ def bag_pairs(count: int) -> tuple[list, int, int, Callable[..., Any]]:
     return prepared, width, height, pair
 
 
+def as_published(rows: np.ndarray) -> np.ndarray:
+    """A detector's rows after the node's steps: the system's nested-box suppression."""
+    from gldt_core.system.config import DetectorSettings
+    from gldt_core.system.steps import drop_nested
+
+    return drop_nested(rows, DetectorSettings().nested_threshold)
+
+
 def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypatch: pytest.MonkeyPatch) -> None:
     from gldt_core.detect import GlobalDetector
     from gldt_ros.nodes.global_detector import GlobalDetectorNode
@@ -90,8 +98,10 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypa
             node.on_pair(pair(previous, current))
         assert len(runs) == 2  # the first pair and the one after the gap
         for (previous, current), message in zip(sequence, published):
-            expected, _ = full.detect_prepared(
-                prepared[previous][0], prepared[current][0], prepared[current][1], width, height
+            expected = as_published(
+                full.detect_prepared(prepared[previous][0], prepared[current][0], prepared[current][1], width, height)[
+                    0
+                ]
             )
             boxes = np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections])
             centres = np.c_[(expected[:, 0] + expected[:, 2]) / 2, (expected[:, 1] + expected[:, 3]) / 2]
@@ -120,7 +130,9 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
         )
 
     def expected(previous: int, current: int) -> np.ndarray:
-        rows, _ = full.detect_prepared(prepared[previous][0], prepared[current][0], prepared[current][1], width, height)
+        rows = as_published(
+            full.detect_prepared(prepared[previous][0], prepared[current][0], prepared[current][1], width, height)[0]
+        )
         return np.c_[
             (rows[:, 0] + rows[:, 2]) / 2,
             (rows[:, 1] + rows[:, 3]) / 2,
