@@ -22,7 +22,6 @@ implementation used both to cut training crops and at run time.
 
 from __future__ import annotations
 
-import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -87,7 +86,8 @@ def cut_crops(previous: np.ndarray, frame: np.ndarray, windows: np.ndarray, size
 
 
 def encode_boxes(boxes: np.ndarray, windows: np.ndarray) -> np.ndarray:
-    """Regression targets ``(N, 4)``: centre offset over the window side, log of size over side."""
+    """A box relative to its crop window, ``(N, 4)``: centre offset over the window side, log of
+    width and height over the side (what the quality head is told about the box)."""
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 4)
     side = windows[:, 2]
     w = np.maximum(boxes[:, 2] - boxes[:, 0], 1e-3)
@@ -159,9 +159,9 @@ class SecondStage:
     (a box is a drone when its drone probability passes), then the probabilities of the three
     object classes given that it is an object (they sum to 1: the evidence a track gathers).
     Rows under ``score_threshold`` are dropped, and duplicates removed by NMS at IoU ``nms_iou``,
-    pair by pair (with ``nested_threshold``, also a box nested in a better one; the GL-DT system
-    does that before its tracker instead, :func:`gldt_core.system.steps.drop_nested`, since for
-    a detection metric the well-placed box under a better-scored nested one is worth keeping).
+    pair by pair. Boxes nested in a better one stay (a detection metric wants the well-placed
+    box under a better-scored nested one); the GL-DT system drops them before its tracker
+    (:func:`gldt_core.system.steps.drop_nested`).
     """
 
     EXPECTATION = (
@@ -183,7 +183,6 @@ class SecondStage:
         classes: Sequence[int] | None = (1,),
         max_candidates: int = 12,
         nms_iou: float = 0.5,
-        nested_threshold: float | None = None,
     ) -> None:
         path = Path(model_path)
         if not path.is_file():
@@ -212,8 +211,6 @@ class SecondStage:
             raise DetectorConfigError(f"second stage: max_candidates must be >= 1, got {max_candidates!r}")
         self.max_candidates = int(max_candidates)
         self.nms_iou = float(nms_iou)
-        self.nested_threshold = nested_threshold
-        self.last_seconds = 0.0
 
     def classify(self, crops: np.ndarray, geometry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Class logits ``(N, 4)`` and box-quality logits ``(N,)`` of crops cut by :func:`cut_crops`
@@ -228,7 +225,6 @@ class SecondStage:
 
     def rescore_many(self, items: Sequence[tuple[np.ndarray | None, np.ndarray, np.ndarray]]) -> list[np.ndarray]:
         """One ``(M, 9)`` float32 array per ``(previous, frame, candidates)``, all crops in one batch."""
-        start = time.perf_counter()
         arrays = []
         for _, _, candidates in items:
             candidates = np.asarray(candidates, dtype=np.float64)
@@ -267,9 +263,8 @@ class SecondStage:
                 mine = rows[item_of[picked_all] == i]
                 mine = mine[mine[:, 4] >= self.score_threshold]
                 if len(mine):
-                    mine = mine[nms(mine[:, :4], mine[:, 4], self.nms_iou, self.nested_threshold)]
+                    mine = mine[nms(mine[:, :4], mine[:, 4], self.nms_iou)]
                 results[i] = mine.astype(np.float32)
-        self.last_seconds = time.perf_counter() - start
         return results
 
     def _score(

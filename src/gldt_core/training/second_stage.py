@@ -1,15 +1,16 @@
-"""Training the second stage (:mod:`gldt_core.detect.second_stage`): a crop classifier with box refinement.
+"""Training the second stage (:mod:`gldt_core.detect.second_stage`): a crop classifier with a box-quality head.
 
 ``gldt train second-stage --config CFG [--resume CKPT]``. The Halmstad training clips are split
 again by name: most train the classifier, every ``calibration_period``-th clip of each category
-is kept for the calibration (the logistic map from logits and detector score to the probability
-of a drone at IoU 0.5) and for the figures in the model card. The validation splits of
+is kept for the calibration (the monotone map from the evidence to the probability of a drone
+boxed at IoU 0.5) and for the figures in the model card. The validation splits of
 :mod:`gldt_core.eval.halmstad_split` are never read here.
 
-Training is resumable: ``last.pt`` holds the model, the optimiser, the step reached, the random
-generators and the accumulated training time, and each epoch's data order is a function of
-(seed, epoch), so a run stopped at any epoch and resumed gives the same weights as one that ran
-through. A resume checks the checkpoint against the config before anything is written.
+Training is resumable: ``last.pt`` holds the model, the optimiser, the schedule's step, the epoch
+reached and the accumulated training time, and each epoch's data order and augmentation are a
+function of (seed, epoch) alone, so a run stopped after any epoch and resumed gives the same
+weights as one that ran through (the schedule is part of the checkpoint: a longer run is one
+configured longer from its start). A resume checks the checkpoint against the config before anything is written.
 """
 
 from __future__ import annotations
