@@ -61,6 +61,10 @@ def test_most_urgent_prefers_smallest_time_to_collision() -> None:
     urgent = most_urgent([far, near, lost])
     assert urgent is not None and urgent.id == 2
     assert "TTC 2.5 s" in describe(near)
+    near.class_id, near.class_confidence = Track.CLASS_BIRD, 0.8
+    assert "(bird 0.80)" in describe(near)
+    near.class_id = Track.CLASS_UNKNOWN
+    assert "(class unknown)" in describe(near)
     assert most_urgent([lost]) is None
 
 

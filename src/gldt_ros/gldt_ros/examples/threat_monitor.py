@@ -28,8 +28,12 @@ def most_urgent(tracks: list[Track]) -> Track | None:
     return live[0] if live else None
 
 
+CLASS_NAMES = {Track.CLASS_DRONE: "drone", Track.CLASS_BIRD: "bird", Track.CLASS_AIRPLANE: "airplane"}
+
+
 def describe(track: Track) -> str:
-    parts = [f"track {track.id}"]
+    kind = CLASS_NAMES.get(track.class_id)
+    parts = [f"track {track.id}" + (f" ({kind} {track.class_confidence:.2f})" if kind else " (class unknown)")]
     if track.bearing_valid:
         parts.append(f"az {math.degrees(track.azimuth):+.1f} deg el {math.degrees(track.elevation):+.1f} deg")
     else:
