@@ -40,6 +40,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.set_defaults(func=_run)
 
 
+def _with_common_overrides(config: dict, args: argparse.Namespace) -> dict:
+    """``--seed``, ``--epochs`` and ``--max-wall-s`` over a training config (detectors and second stage alike)."""
+    if args.seed is not None:
+        config["seed"] = args.seed
+    if args.epochs is not None:
+        config["train"]["epochs"] = args.epochs
+    if args.max_wall_s is not None:
+        config["train"]["max_wall_s"] = args.max_wall_s
+    return config
+
+
 def _run(args: argparse.Namespace) -> int:
     if args.task == "second-stage":
         return _run_second_stage(args)
@@ -50,19 +61,13 @@ def _run(args: argparse.Namespace) -> int:
     except ImportError as error:  # torch is an optional extra
         raise ValueError(f"training needs torch (pip install torch==2.13.0 onnx): {error}") from error
 
-    config = load_config(args.config)
-    if args.seed is not None:
-        config["seed"] = args.seed
-    if args.epochs is not None:
-        config["train"]["epochs"] = args.epochs
+    config = _with_common_overrides(load_config(args.config), args)
     if args.steps_per_epoch is not None:
         config["train"]["steps_per_epoch"] = args.steps_per_epoch
     if args.device is not None:
         config["train"]["device"] = args.device
     if args.workers is not None:
         config["data"]["load_workers"] = config["train"]["loader_workers"] = args.workers
-    if args.max_wall_s is not None:
-        config["train"]["max_wall_s"] = args.max_wall_s
     best = train(args.task, config, out_dir=args.out, progress=not args.no_progress)
     print(f"best checkpoint: {best}")
     return 0
@@ -74,13 +79,7 @@ def _run_second_stage(args: argparse.Namespace) -> int:
     except ImportError as error:  # torch is an optional extra
         raise ValueError(f"training needs torch (pip install torch==2.13.0 onnx): {error}") from error
 
-    config = load_config(args.config)
-    if args.seed is not None:
-        config["seed"] = args.seed
-    if args.epochs is not None:
-        config["train"]["epochs"] = args.epochs
-    if args.max_wall_s is not None:
-        config["train"]["max_wall_s"] = args.max_wall_s
+    config = _with_common_overrides(load_config(args.config), args)
     for name in ("steps_per_epoch", "device", "workers"):
         if getattr(args, name.replace("-", "_")) is not None:
             raise ValueError(f"--{name.replace('_', '-')} applies to the detectors, not the second stage")

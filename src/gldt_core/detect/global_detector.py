@@ -41,7 +41,7 @@ from gldt_core.detect.second_stage import (
     UNCALIBRATED_THRESHOLD,
     SecondStage,
     SecondStageChoice,
-    load_second_stage,
+    attach_second_stage,
     one_hot_probabilities,
 )
 from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
@@ -139,16 +139,12 @@ class GlobalDetector(OnnxDetector):
         self._read_classes(classes)
         self.max_detections = int(max_detections)
         # A detector opened for its geometry only (optimize_graph=False) never scores boxes.
-        self.second_stage = load_second_stage(
+        self.second_stage, self.decode_threshold = attach_second_stage(
             second_stage if optimize_graph else None,
             self.model_path,
             providers=providers,
             score_threshold=self.score_threshold,
             classes=self.classes,
-        )
-        # Candidates go to the second stage from a low detector score (never above the threshold asked for).
-        self.decode_threshold = (
-            min(SecondStage.CANDIDATE_SCORE, self.score_threshold) if self.second_stage else self.score_threshold
         )
         self.feature_reuse: FeatureReuse | None = None
         if split_first or (optimize_graph and feature_reuse):  # required but absent: a clear error

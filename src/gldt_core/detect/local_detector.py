@@ -39,7 +39,7 @@ from gldt_core.detect.second_stage import (
     UNCALIBRATED_THRESHOLD,
     SecondStage,
     SecondStageChoice,
-    load_second_stage,
+    attach_second_stage,
     one_hot_probabilities,
 )
 from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
@@ -87,16 +87,12 @@ class LocalDetector(OnnxDetector):
         self.max_scale = self.input_side / float(self.card.get("roi_side", self.input_side))
         self._read_classes(classes)
         self.max_detections_per_roi = int(max_detections_per_roi)
-        self.second_stage = load_second_stage(
+        self.second_stage, self.decode_threshold = attach_second_stage(
             second_stage,
             self.model_path,
             providers=providers,
             score_threshold=self.score_threshold,
             classes=self.classes,
-        )
-        # Candidates go to the second stage from a low detector score (never above the threshold asked for).
-        self.decode_threshold = (
-            min(SecondStage.CANDIDATE_SCORE, self.score_threshold) if self.second_stage else self.score_threshold
         )
 
     @staticmethod

@@ -315,3 +315,21 @@ def load_second_stage(
             "set detector.second_stage: null (second_stage=None) to run the detector alone"
         )
     return SecondStage(path, providers=providers, score_threshold=score_threshold, classes=classes)
+
+
+def attach_second_stage(
+    choice: SecondStageChoice,
+    detector_model: Path,
+    *,
+    providers: Sequence[str],
+    score_threshold: float,
+    classes: Sequence[int] | None,
+) -> tuple[SecondStage | None, float]:
+    """A detector's second stage (:func:`load_second_stage`) and the score its model decodes
+    candidates down to: :attr:`SecondStage.CANDIDATE_SCORE` with a second stage (never above the
+    threshold asked for), else the threshold itself."""
+    stage = load_second_stage(
+        choice, detector_model, providers=providers, score_threshold=score_threshold, classes=classes
+    )
+    decode = min(SecondStage.CANDIDATE_SCORE, score_threshold) if stage is not None else score_threshold
+    return stage, decode
