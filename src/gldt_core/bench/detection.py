@@ -116,11 +116,11 @@ def _detectors(args: argparse.Namespace, threshold: float | None) -> dict[str, G
 
 def _operating_threshold(args: argparse.Namespace, detector: GlobalDetector | LocalDetector) -> float:
     """``--score-threshold``, else the detector's default (calibrated with a second stage)."""
-    from gldt_core.detect.second_stage import UNCALIBRATED_THRESHOLD, SecondStage
+    from gldt_core.detect.second_stage import default_score_threshold
 
     if args.score_threshold is not None:
         return float(args.score_threshold)
-    return SecondStage.DEFAULT_THRESHOLD if detector.second_stage is not None else UNCALIBRATED_THRESHOLD
+    return default_score_threshold(detector.second_stage is not None)
 
 
 def _drones(detections: list) -> list:

@@ -38,10 +38,9 @@ from gldt_core.detect.postprocess import (
 )
 from gldt_core.detect.second_stage import (
     BESIDE,
-    UNCALIBRATED_THRESHOLD,
-    SecondStage,
     SecondStageChoice,
     attach_second_stage,
+    default_score_threshold,
     one_hot_probabilities,
 )
 from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
@@ -106,7 +105,7 @@ class GlobalDetector(OnnxDetector):
             and reuse_path(path).is_file()
         )
         if score_threshold is None:
-            score_threshold = UNCALIBRATED_THRESHOLD if second_stage is None else SecondStage.DEFAULT_THRESHOLD
+            score_threshold = default_score_threshold(second_stage is not None)
         inputs = self._open(
             model_path,
             DEFAULT_GLOBAL_MODEL,

@@ -36,10 +36,9 @@ from gldt_core.detect.second_stage import (
     BESIDE,
     LOCAL_COLUMNS,
     PROBABILITY_COLUMNS,
-    UNCALIBRATED_THRESHOLD,
-    SecondStage,
     SecondStageChoice,
     attach_second_stage,
+    default_score_threshold,
     one_hot_probabilities,
 )
 from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
@@ -65,7 +64,7 @@ class LocalDetector(OnnxDetector):
         second_stage: SecondStageChoice = BESIDE,
     ):
         if score_threshold is None:
-            score_threshold = UNCALIBRATED_THRESHOLD if second_stage is None else SecondStage.DEFAULT_THRESHOLD
+            score_threshold = default_score_threshold(second_stage is not None)
         inputs = self._open(model_path, DEFAULT_LOCAL_MODEL, providers, num_threads, score_threshold, iou_threshold)
         if len(inputs) != 1:
             raise DetectorConfigError(

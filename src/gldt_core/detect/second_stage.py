@@ -333,3 +333,9 @@ def attach_second_stage(
     )
     decode = min(SecondStage.CANDIDATE_SCORE, score_threshold) if stage is not None else score_threshold
     return stage, decode
+
+
+def default_score_threshold(with_second_stage: bool) -> float:
+    """A detector's own threshold: 0.5 of the calibrated probability with a second stage, else
+    :data:`UNCALIBRATED_THRESHOLD` for the raw, under-confident detector score."""
+    return SecondStage.DEFAULT_THRESHOLD if with_second_stage else UNCALIBRATED_THRESHOLD
