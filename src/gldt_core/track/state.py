@@ -62,6 +62,8 @@ class Track:
         self.history: deque[tuple[float, ...]] = deque(maxlen=history_len)
         #: Last observed centre ``(cx, cy)`` as Python floats (see ``last_obs_cxcy``).
         self.last_obs_xy: tuple[float, float] = (cx, cy)
+        #: Last observed box size ``(w, h)`` px (the detection's; looming TTC measures it).
+        self.last_obs_wh: tuple[float, float] = (w, h)
         self._recent_v: deque[tuple[float, float]] = deque()
         self._v_sum = [0.0, 0.0]
         self._record(t, rel_xy)
@@ -115,8 +117,9 @@ class Track:
     ) -> None:
         """The bookkeeping of a matched detection ``x1..y2`` at ``t``, after the filter has fused it
         (:func:`update_tracks` does both: the one way to update a track)."""
-        cx, cy, _, _ = centre_size(x1, y1, x2, y2)
+        cx, cy, w, h = centre_size(x1, y1, x2, y2)
         self.last_obs_xy = (cx, cy)
+        self.last_obs_wh = (w, h)
         self.score = score
         self.hits += 1
         self.frames_since_update = 0
