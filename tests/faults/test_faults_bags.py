@@ -403,16 +403,20 @@ def test_resolution_change_mid_bag_reinitialises_the_pipeline_once(
 
 # --------------------------------------------------------------------------- camera_info
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
-def test_pinhole_intrinsics_refuse_nan_and_inf_in_camera_info(bad: float) -> None:
-    from gldt_core.camera import PinholeIntrinsics
+def test_camera_model_refuses_nan_and_inf_in_camera_info(bad: float) -> None:
+    from gldt_core.camera import CameraModel, CameraModelError
 
     k = default_camera_matrix((640, 512)).reshape(-1)
     for position in (0, 2, 4, 5, 8):
         broken = k.copy()
         broken[position] = bad
-        with pytest.raises(ValueError, match="camera_info.k"):
-            PinholeIntrinsics.from_k(broken)
-    assert PinholeIntrinsics.from_k(k).fx > 0
+        with pytest.raises(CameraModelError, match="camera_info.k"):
+            CameraModel.from_camera_info(broken)
+    distortion = [0.0] * 5
+    distortion[1] = bad
+    with pytest.raises(CameraModelError, match="camera_info.d"):
+        CameraModel.from_camera_info(k, distortion, "plumb_bob")
+    assert CameraModel.from_camera_info(k).fx > 0
 
 
 def test_nan_camera_info_in_a_bag_is_refused_or_dropped_with_a_warning(

@@ -426,10 +426,10 @@ class BagSource(FrameSource):
         return f"{self.damage.path}: damaged {where} (byte {self.damage.offset}): {self.damage.reason}"
 
     def _checked_k(self, k: Any) -> np.ndarray:
-        from gldt_core.camera import PinholeIntrinsics
+        from gldt_core.camera import CameraModel
 
         values = np.asarray(k, dtype=np.float64).reshape(-1)
-        PinholeIntrinsics.from_k(values)  # raises ValueError naming camera_info.k
+        CameraModel.from_camera_info(values)  # raises CameraModelError (a ValueError) naming camera_info.k
         return values.reshape(3, 3)
 
     # ---------------------------------------------------------------- reading
