@@ -88,17 +88,18 @@ def replay(request, tmp_path_factory):
         ).reshape(-1, 5)
         for _, message, _ in iter_recorded(record, "gldt/detections")
     }
-    return bag, recorded_track_rows(record), completed.stdout, detections
+    arrays = [message for _, message, _ in iter_recorded(record, "gldt/tracks")]
+    return bag, recorded_track_rows(record), completed.stdout, detections, arrays
 
 
 def test_every_frame_is_answered(replay) -> None:
-    bag, rows, stdout, _ = replay
+    bag, rows, stdout, _, _ = replay
     assert "0 frames without an answer" in stdout, stdout
 
 
 def test_graph_detections_equal_offline_detections(replay) -> None:
     """Every frame's detections (after class filter and ROI merging) match, in GD and LD alike."""
-    bag, _, _, graph = replay
+    bag, _, _, graph, _ = replay
     _, _, offline = offline_run(bag)
     assert sorted(graph) == sorted(offline), "the graph detected on other frames than the offline run"
     if bag.name in MOTA_FLOOR:
@@ -113,7 +114,7 @@ def test_graph_detections_equal_offline_detections(replay) -> None:
 
 
 def test_lockstep_replay_equals_offline_run(replay) -> None:
-    bag, graph, _, _ = replay
+    bag, graph, _, _, _ = replay
     offline, _ = offline_rows(bag)
     if bag.name in MOTA_FLOOR:
         assert len(offline) > 0, "the offline run produced no tracks at all; nothing to compare"
@@ -129,7 +130,7 @@ def test_lockstep_replay_equals_offline_run(replay) -> None:
 def test_graph_tracks_meet_the_mota_floor(replay) -> None:
     from gldt_core.eval.mot_metrics import evaluate_sequence
 
-    bag, graph, _, _ = replay
+    bag, graph, _, _, _ = replay
     if bag.name not in MOTA_FLOOR:
         return  # equivalence only, see MOTA_FLOOR
     _, ground_truth = offline_rows(bag)
@@ -137,6 +138,43 @@ def test_graph_tracks_meet_the_mota_floor(replay) -> None:
     drones = ground_truth[ground_truth[:, 7] == 1]
     metrics = evaluate_sequence(drones, graph)
     assert metrics["MOTA"] >= MOTA_FLOOR[bag.name], f"{bag.name}: MOTA {metrics['MOTA']:.3f}"
+
+
+def test_the_planner_stream_keeps_its_invariants(replay) -> None:
+    """What a planner subscribed to /gldt/tracks relies on: one TrackArray per frame, every id in
+    every frame from its first entry to its single REMOVED one, a class on every track that was
+    matched, bearings from frame 0 on (the player sends camera_info first), and a time to collision
+    whose validity seldom flips."""
+    bag, _, _, _, arrays = replay
+    from gldt_msgs.msg import Track
+
+    frames = [int(array.frame_index) for array in arrays]
+    assert frames == list(range(len(frames))), "not exactly one TrackArray per frame, in order"
+    seen: dict[int, list[int]] = {}
+    removed: set[int] = set()
+    flips = track_frames = 0
+    last_valid: dict[int, bool] = {}
+    for array in arrays:
+        for track in array.tracks:
+            assert track.id not in removed, f"frame {array.frame_index}: id {track.id} published after REMOVED"
+            seen.setdefault(track.id, []).append(int(array.frame_index))
+            if track.state == Track.STATE_REMOVED:
+                removed.add(track.id)
+                continue
+            assert track.state != Track.STATE_TENTATIVE
+            assert track.bearing_valid, f"frame {array.frame_index}: track {track.id} has no bearing"
+            assert abs(np.linalg.norm(track.line_of_sight) - 1.0) < 1e-9
+            if track.hits > 0:
+                assert track.class_id in (Track.CLASS_DRONE, Track.CLASS_BIRD, Track.CLASS_AIRPLANE)
+            track_frames += 1
+            valid = bool(track.time_to_collision_valid)
+            flips += track.id in last_valid and last_valid[track.id] != valid
+            last_valid[track.id] = valid
+    for track_id, life in seen.items():
+        assert life == list(range(life[0], life[0] + len(life))), f"id {track_id} has a hole: {life}"
+    if bag.name in MOTA_FLOOR:
+        assert track_frames > 0, "no tracks: nothing was checked"
+    assert flips <= 0.1 * max(track_frames, 1), f"TTC validity flipped {flips} times in {track_frames} track-frames"
 
 
 def test_a_namespaced_graph_serves_its_own_camera(tmp_path: Path) -> None:

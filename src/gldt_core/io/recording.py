@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from gldt_core.io.mcap_file import McapDamageError, read_mcap
+from gldt_core.track.planner_stream import MATCHED_STATES, STATE_CODES
 
 TRACKS_TOPIC_SUFFIX = "gldt/tracks"
 
@@ -46,12 +47,18 @@ def iter_recorded(path: str | os.PathLike[str], topic_suffix: str) -> Iterator[t
 def recorded_track_rows(path: str | os.PathLike[str]) -> np.ndarray:
     """MOTChallenge rows ``frame, id, x, y, w, h, score, -1, -1, -1`` of every recorded ``TrackArray``.
 
+    Only the tracks matched with a detection in their frame, as the tracker's output and the MOT
+    files of ``gldt run`` hold them: the coasting and removed entries of the planner's stream
+    (:mod:`gldt_core.track.planner_stream`) are not rows a MOT metric should count.
     ``frame`` is ``frame_index + 1`` (MOTChallenge is 1-based), rows in recording order.
     """
+    matched_codes = {STATE_CODES[name] for name in MATCHED_STATES}
     rows: list[tuple[float, ...]] = []
     for _, array, _ in iter_recorded(path, TRACKS_TOPIC_SUFFIX):
         frame = int(array.frame_index) + 1
         for track in array.tracks:
+            if int(track.state) not in matched_codes or int(track.frames_since_update) != 0:
+                continue
             rows.append(
                 (
                     frame,

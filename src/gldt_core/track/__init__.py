@@ -19,6 +19,8 @@ Modules, each importing only the ones listed before it:
 * ``base``: the multi-stage association loop both trackers share;
 * ``bytetrack``, ``jptrack``: the two trackers and their configs;
 * ``class_evidence``: what each track is (drone, bird, airplane), from the detections it was matched with;
+* ``looming``: time to collision from a Kalman filter on the inverse box size;
+* ``planner_stream``: what ``/gldt/tracks`` holds each frame (every live track, ids without holes);
 * ``runner``: runs a tracker over a MOT detection table (``gldt track``, the benchmark).
 """
 

@@ -17,6 +17,7 @@ from sensor_msgs.msg import Image, RegionOfInterest
 from gldt_core.detect.second_stage import GLOBAL_COLUMNS, LOCAL_COLUMNS, PROBABILITY_COLUMNS
 from gldt_core.io.imaging import decode_compressed_image, decode_raw_image, encode_bgr8
 from gldt_core.system.steps import state_name
+from gldt_core.track.planner_stream import STATE_CODES
 
 
 def stamp_seconds(stamp: Any) -> float:
@@ -110,25 +111,18 @@ def msgs_to_rois(rois: Iterable[Roi]) -> np.ndarray:
     return np.asarray(rows, dtype=np.int64).reshape(-1, 4)
 
 
-_STATE_CODES = {
-    "TENTATIVE": Track.STATE_TENTATIVE,
-    "CONFIRMED": Track.STATE_CONFIRMED,
-    "LOST": Track.STATE_LOST,
-    "RECOVERED": Track.STATE_RECOVERED,
-}
-
-
 def state_code(state: Any) -> int:
     """``Track.STATE_*`` for a core ``TrackState`` (by name, so enum values may be anything)."""
-    name = state_name(state)
-    if name not in _STATE_CODES:
+    name = state_name(state).lower()
+    if name not in STATE_CODES:
         raise ValueError(f"unknown track state {state!r}")
-    return _STATE_CODES[name]
+    return STATE_CODES[name]
 
 
-def track_to_msg(track: Any, class_id: int = Track.CLASS_UNKNOWN, class_confidence: float = 0.0) -> Track:
-    """A core ``Track`` object -> ``gldt_msgs/Track`` (bearing fields are filled by the caller);
-    ``class_id`` / ``class_confidence`` from :class:`gldt_core.track.class_evidence.ClassEvidence`."""
+def track_to_msg(track: Any) -> Track:
+    """A core ``Track`` object -> ``gldt_msgs/Track``: its box, motion and life (what the mode
+    scheduler plans ROIs from). The planner's stream is built by
+    :func:`gldt_ros.interface.track_fields.planner_track_to_msg`."""
     x1, y1, x2, y2 = (float(v) for v in track.box_xyxy)
     vx, vy = (float(v) for v in track.velocity_px_s[:2])
     covariance = np.zeros(64)
@@ -149,8 +143,7 @@ def track_to_msg(track: Any, class_id: int = Track.CLASS_UNKNOWN, class_confiden
         hits=int(track.hits),
         frames_since_update=int(track.frames_since_update),
         score=float(track.score),
-        class_id=int(class_id),
-        class_confidence=float(class_confidence),
+        class_id=Track.CLASS_UNKNOWN,
     )
 
 

@@ -2,8 +2,13 @@
 
 Besides the tracks it answers every ``FrameTick`` with the Kalman predictions of the tracks
 worth an ROI at that frame's time (``TrackPredictions`` for the mode scheduler), using the same
-core function as the offline GL-DT system. With ``/camera/camera_info`` known, each track carries
-its bearing, bearing rate and a looming time-to-collision for avoidance planners.
+core function as the offline GL-DT system.
+
+``/gldt/tracks`` is the planner's stream (:class:`gldt_core.track.planner_stream.PlannerStream`):
+every live track in every frame, coasting ones included, each id closed by one ``REMOVED`` entry,
+with its class and a filtered time to collision; with a usable ``/camera/camera_info`` also its
+line of sight, REP-103 bearing and bearing covariance. Until then (or after a camera_info that
+cannot be used) the node's diagnostics say WARN and bearings are marked invalid; tracks flow.
 """
 
 from __future__ import annotations
@@ -16,12 +21,12 @@ from gldt_msgs.msg import DetectionArray, FrameTick, TrackArray, TrackPrediction
 from sensor_msgs.msg import CameraInfo
 from visualization_msgs.msg import MarkerArray
 
-from gldt_core.camera import PinholeIntrinsics
+from gldt_core.camera import CameraModel
 from gldt_core.system.config import SystemConfig, TrackerSettings
 from gldt_core.system.gldt_system import accepts_keyword, build_tracker
 from gldt_core.system.stamps import StampOrder
 from gldt_core.system.steps import stable_predictions
-from gldt_core.track.class_evidence import ClassEvidence
+from gldt_core.track.planner_stream import PlannerStream
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import (
     detection_array_class_probabilities,
@@ -30,8 +35,11 @@ from gldt_ros.interface.convert import (
     stamp_seconds,
     track_to_msg,
 )
-from gldt_ros.interface.track_fields import fill_planner_fields, markers_for
+from gldt_ros.interface.track_fields import markers_for, planner_track_to_msg
 from gldt_ros.runtime.node_base import GldtNode, run_node
+
+#: The diagnostics condition raised while bearings cannot be computed.
+CAMERA_INFO_WARNING = "camera_info"
 
 
 class TrackerNode(GldtNode):
@@ -41,10 +49,11 @@ class TrackerNode(GldtNode):
             tracker=TrackerSettings(name=self.param("tracker")), track_lost_frames=int(self.param("lost_frames_kept"))
         )
         self.tracker = build_tracker(self.config)
-        self.class_evidence = ClassEvidence()
+        self.stream = PlannerStream()
         self._takes_rois = accepts_keyword(self.tracker.update, "rois")
         self._frame_size: tuple[int, int] | None = None
-        self.intrinsics: PinholeIntrinsics | None = None
+        self.camera: CameraModel | None = None
+        self.set_warning(CAMERA_INFO_WARNING, "no camera_info received yet: bearings invalid")
         self._order = StampOrder()
         self._last_tracked_stamp = Time()  # zero: nothing tracked yet
         self.create_subscription(
@@ -63,10 +72,15 @@ class TrackerNode(GldtNode):
 
     def on_camera_info(self, message: CameraInfo) -> None:
         try:
-            self.intrinsics = PinholeIntrinsics.from_k(message.k)
+            camera = CameraModel.from_camera_info(message.k, message.d, message.distortion_model)
         except ValueError as error:
-            self.intrinsics = None
-            raise ValueError(f"camera_info ignored, bearings invalid until a good one arrives: {error}") from None
+            self.camera = None
+            text = f"camera_info ignored, bearings invalid until a usable one arrives: {error}"
+            self.set_warning(CAMERA_INFO_WARNING, text)
+            raise ValueError(text) from None
+        if camera != self.camera:
+            self.camera = camera
+            self.set_warning(CAMERA_INFO_WARNING, None)
 
     def on_tick(self, tick: FrameTick) -> None:
         t = stamp_seconds(tick.header.stamp)
@@ -76,7 +90,7 @@ class TrackerNode(GldtNode):
             if self._frame_size is not None:
                 self.get_logger().warning(f"frame size changed to {size[0]}x{size[1]}; tracker re-initialised")
             self.tracker = build_tracker(self.config, size)
-            self.class_evidence.reset()
+            self.stream.restart()
             self._frame_size = size
             self._order.forget()
         self._check_time(t, tick.frame_index)
@@ -108,7 +122,7 @@ class TrackerNode(GldtNode):
                 f"frame {frame_index}: stream restarted ({last:.3f} s -> {t:.3f} s); tracker reset"
             )
             self.tracker.reset()
-            self.class_evidence.reset()
+            self.stream.restart()
 
     def on_detections(self, message: DetectionArray) -> None:
         t = stamp_seconds(message.header.stamp)
@@ -123,18 +137,10 @@ class TrackerNode(GldtNode):
         else:
             output = self.tracker.update(detections, t)
         rows = np.asarray(output, dtype=np.float64).reshape(-1, 6)
-        classes = self.class_evidence.update(rows, detections, detection_array_class_probabilities(message))
-        by_id = {int(track.track_id): track for track in self.tracker.tracks}
-        tracks = []
-        for (x1, y1, x2, y2, track_id, score), (class_id, confidence) in zip(rows, classes):
-            track = by_id.get(int(track_id))
-            out = track_to_msg(track, int(class_id), float(confidence)) if track is not None else None
-            if out is None:
-                continue
-            out.center_x, out.center_y, out.width, out.height = (x1 + x2) / 2, (y1 + y2) / 2, x2 - x1, y2 - y1
-            out.score = float(score)
-            fill_planner_fields(out, track, self.intrinsics)
-            tracks.append(out)
+        entries = self.stream.step(
+            self.tracker.tracks, t, rows, detections, detection_array_class_probabilities(message), self.camera
+        )
+        tracks = [planner_track_to_msg(entry) for entry in entries]
         array = TrackArray(header=message.header, frame_index=message.frame_index, tracks=tracks)
         self._last_tracked_stamp = message.header.stamp
         self.track_publisher.publish(array)
