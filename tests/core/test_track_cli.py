@@ -100,3 +100,29 @@ def test_empty_frames_in_the_middle_coast_with_time(tmp_path: Path) -> None:
     tracks = read_mot(tmp_path / "o.txt")
     assert set(tracks[:, 1].astype(int).tolist()) == {1}
     assert tracks[:, 0].max() == 40
+
+
+def test_a_frame_number_far_beyond_the_rest_costs_no_memory(tmp_path: Path) -> None:
+    """One row at frame 100,000,000 (a typo, a counter that wrapped): `gldt track` and `gldt eval`
+    answer in bounded memory and time, as if the gap were not there. Run under a 1 GiB address
+    space limit, where sizing anything by the frame number (800 MB per int64 array) fails."""
+    import subprocess
+    import sys
+
+    gt_path, det_path = _scene(tmp_path, frames=60)
+    far = "100000000,-1,100,100,20,12,0.9,-1,-1,-1\n"
+    for path in (gt_path, det_path):
+        path.write_text(path.read_text() + far.replace(",0.9,", ",1,") if path == gt_path else path.read_text() + far)
+    out_path = tmp_path / "tracks.txt"
+    script = (
+        "import resource, sys\n"
+        "resource.setrlimit(resource.RLIMIT_AS, (1 << 30, 1 << 30))\n"
+        "from gldt_core.cli import main\n"
+        f"assert main(['track', '--dets', {str(det_path)!r}, '--out', {str(out_path)!r}, '--fps', '30']) == 0\n"
+        f"sys.exit(main(['eval', '--gt', {str(gt_path)!r}, '--pred', {str(out_path)!r}, '--json']))\n"
+    )
+    completed = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    assert completed.returncode == 0, completed.stderr[-2000:]
+    result = json.loads(completed.stdout[completed.stdout.index("{") :])
+    assert result["combined"]["FN"] >= 1  # the far ground-truth row was evaluated, not dropped
+    assert len(read_mot(out_path)) > 100

@@ -144,12 +144,12 @@ def _as_rows(rows: np.ndarray, what: str) -> np.ndarray:
     return table
 
 
-def _group_by_frame(table: np.ndarray, num_frames: int) -> list[np.ndarray]:
+def _group_by_frame(table: np.ndarray, frames: np.ndarray) -> list[np.ndarray]:
+    """The rows of each of ``frames`` (sorted frame numbers), in that order."""
     order = np.argsort(table[:, 0], kind="stable")
     table = table[order]
-    frames = table[:, 0].astype(np.int64)
-    starts = np.searchsorted(frames, np.arange(1, num_frames + 2))
-    return [table[starts[f] : starts[f + 1]] for f in range(num_frames)]
+    starts = np.searchsorted(table[:, 0].astype(np.int64), np.append(frames, np.iinfo(np.int64).max))
+    return [table[starts[i] : starts[i + 1]] for i in range(len(frames))]
 
 
 def _preprocess(
@@ -168,14 +168,16 @@ def _preprocess(
         raise ValueError(f"num_frames={num_frames} but the data has rows up to frame {last}")
     targets = np.asarray(sorted(set(int(c) for c in target_classes)), dtype=np.int64)
     distractors = np.asarray(sorted(set(int(c) for c in distractor_classes)), dtype=np.int64)
-    gt_frames = _group_by_frame(gt, num_frames)
-    pred_frames = _group_by_frame(pred, num_frames)
+    # Only frames with a row: a frame without ground truth and predictions changes no metric
+    # (TrackEval skips it too), and a lone row at frame 100,000,000 must not size anything.
+    present = np.union1d(gt[:, 0], pred[:, 0]).astype(np.int64)
+    gt_frames = _group_by_frame(gt, present)
+    pred_frames = _group_by_frame(pred, present)
 
     gt_ids_t: list[np.ndarray] = []
     pred_ids_t: list[np.ndarray] = []
     sims_t: list[np.ndarray] = []
-    for index, (g, p) in enumerate(zip(gt_frames, pred_frames)):
-        frame = index + 1
+    for frame, g, p in zip(present.tolist(), gt_frames, pred_frames):
         g_ids = g[:, 1].astype(np.int64)
         p_ids = p[:, 1].astype(np.int64)
         if len(np.unique(p_ids)) != len(p_ids):

@@ -24,8 +24,11 @@ def track_detection_rows(
     track rows ``frame, id, x, y, w, h, score, -1, -1, -1``.
 
     Every frame from 1 to the last one is an update, including frames without detections, so
-    tracks coast through gaps with the right elapsed time. Per-update wall times (seconds) are
-    appended to ``timings`` when given.
+    tracks coast through gaps with the right elapsed time. Once one empty frame has been fed to a
+    tracker that holds no track at all (``tracker.tracks`` empty), the rest of the gap is skipped:
+    updating it with nothing again changes nothing (the one empty update also ends any low-score
+    birth chain, :mod:`gldt_core.track.birth`). Time and memory therefore follow the rows, not the largest frame number.
+    Per-update wall times (seconds) are appended to ``timings`` when given.
     """
     if not np.isfinite(fps) or fps <= 0:
         raise ValueError(f"fps must be a positive number, got {fps}")
@@ -36,14 +39,25 @@ def track_detection_rows(
     last = int(frames.max(initial=0))
     if num_frames is None:
         num_frames = last
-    starts = np.searchsorted(frames, np.arange(1, num_frames + 2))
+    with_rows, first_row = np.unique(frames, return_index=True)
+    row_end = np.append(first_row[1:], len(rows))
     try:
         accepts_frame = "frame" in inspect.signature(tracker.update).parameters
     except (TypeError, ValueError):
         accepts_frame = False
     out: list[np.ndarray] = []
-    for f in range(1, num_frames + 1):
-        block = rows[starts[f - 1] : starts[f]]
+    f, next_block, previous_empty = 1, 0, False
+    while f <= num_frames:
+        while next_block < len(with_rows) and with_rows[next_block] < f:
+            next_block += 1
+        if next_block < len(with_rows) and with_rows[next_block] == f:
+            block = rows[first_row[next_block] : row_end[next_block]]
+        else:
+            block = rows[:0]
+            if previous_empty and not getattr(tracker, "tracks", True):  # nothing to coast: jump the gap
+                f = int(with_rows[next_block]) if next_block < len(with_rows) else num_frames + 1
+                continue
+        previous_empty = len(block) == 0
         dets = np.empty((len(block), 5))
         dets[:, 0] = block[:, 2]
         dets[:, 1] = block[:, 3]
@@ -67,4 +81,5 @@ def track_detection_rows(
             table[:, 5] = result[:, 3] - result[:, 1]
             table[:, 6] = result[:, 5]
             out.append(table)
+        f += 1
     return np.vstack(out) if out else np.zeros((0, 10))
