@@ -25,7 +25,7 @@ from gldt_core.schedule.roi import RoiParams
 from gldt_core.schedule.scheduler import ModeScheduler, SchedulerConfig
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import rois_to_msgs, stamp_seconds
-from gldt_ros.runtime.node_base import GldtNode, run_node
+from gldt_ros.runtime.node_base import STALE_DROPPED, GldtNode, run_node
 
 
 class ModeSchedulerNode(GldtNode):
@@ -85,7 +85,7 @@ class ModeSchedulerNode(GldtNode):
 
         Frames that queued up meanwhile are stale (the frame buffer keeps only the newest few, so
         their decisions could no longer be served, and each LOCAL one would wait again): only the
-        newest is planned."""
+        newest is planned, and the others count as stale drops in the diagnostics."""
         if self._awaiting_report is not None and time.monotonic() - self._awaiting_since > float(
             self.param("report_timeout")
         ):
@@ -97,6 +97,7 @@ class ModeSchedulerNode(GldtNode):
             )
             while len(self._queue) > 1:
                 self._queue.popleft()
+            self.count_event(STALE_DROPPED, stale)
             self._awaiting_report = None
             self._drain()
 

@@ -6,9 +6,21 @@ only, never the node. :meth:`GldtNode.guarded` wraps a callback so that document
 the node's ``/diagnostics`` status and logged in one line, repeats of the same kind at most once a
 second (:mod:`gldt_ros.runtime.log_throttle`).
 
+Besides the inputs and drops, the status counts the frame pairs the global detector skipped
+(``pairs_skipped``) and the messages dropped as late (``stale_dropped``, :class:`StaleMessage`);
+both are WARN while they happen (in the period since the last regular status). A node can also
+raise a named condition that stays WARN until it clears it (:meth:`GldtNode.set_warning`, e.g. the
+tracker's "no valid camera_info").
+
 The diagnostics also carry how many peers each of the node's topics has matched
 (:mod:`gldt_ros.interface.graph_links`), republished as soon as that changes: it is how the
 ``pipeline`` command knows the graph is connected end to end before it sends the first frame.
+
+Every timer of these nodes runs on the steady clock, not on ROS time: the diagnostics, the link
+checks and the scheduler's report timeout are about the process, and with ``use_sim_time`` a
+ROS-time timer stops whenever ``/clock`` does (before a replay started, or paused in lockstep),
+which kept the graph from ever reporting its links. Message stamps and ``get_clock()`` still
+follow ``use_sim_time``.
 
 :func:`run_node` is every node's ``main``: it applies the process-wide runtime settings of this
 package (executor, heap trimming, DDS profile, stack dumps, bounded teardown) and spins the node.
@@ -23,10 +35,12 @@ from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 
+from gldt_core.system.stamps import StaleMessage
 from gldt_ros.interface import qos, topics
-from gldt_ros.interface.graph_links import link_key_values, own_link_counts
+from gldt_ros.interface.graph_links import link_key_values, own_link_counts, parse_link_counts
 from gldt_ros.interface.params import SCHEMA, ParamSpec
 from gldt_ros.runtime.dds_profile import use_frames_profile_if_shipped
 from gldt_ros.runtime.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_node
@@ -39,6 +53,13 @@ from gldt_ros.runtime.teardown_limit import limit_teardown
 LINK_CHECK_PERIOD_S = 0.1
 #: A node's ``/diagnostics`` status is named this prefix plus the node name.
 STATUS_NAME_PREFIX = "gldt/"
+#: Diagnostics keys of the event counters every node reports (0 where a node never has the event):
+#: frame pairs the global detector never answered because a newer pair overtook them (counted
+#: by frame_pair_buffer, which sends the pairs and sees the answers), and inputs dropped as late.
+PAIRS_SKIPPED = "pairs_skipped"
+STALE_DROPPED = "stale_dropped"
+#: How each counter reads in a WARN status's message.
+_EVENT_TEXT = {PAIRS_SKIPPED: "frame pair(s) skipped", STALE_DROPPED: "stale input(s) dropped"}
 
 
 class GldtNode(Node):
@@ -56,6 +77,12 @@ class GldtNode(Node):
         self.frames_dropped = 0
         self._warned: set[str] = set()
         self._error_lines = LogThrottle()
+        # Event counters (totals) and their values at the last regular status: an event since then
+        # makes the status WARN. Named conditions raised by set_warning stay WARN until cleared.
+        self.events: dict[str, int] = {key: 0 for key in _EVENT_TEXT}
+        self._events_reported = dict(self.events)
+        self._warnings: dict[str, str] = {}
+        self._status_changed = False  # a warning was raised or cleared since the last status
         # Latched, so a process that starts listening late still gets each node's latest status.
         self._diagnostics = self.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, qos.LATCHED_STATE)
         self._reported_links: dict[str, int] | None = None
@@ -77,6 +104,8 @@ class GldtNode(Node):
                 callback(message)
             except ValueError as error:
                 self.frames_dropped += 1
+                if isinstance(error, StaleMessage):
+                    self.count_event(STALE_DROPPED)
                 line = self._error_lines.text_for(what, str(error))
                 if line is not None:
                     self.get_logger().error(f"dropped {what}: {line}")
@@ -87,9 +116,18 @@ class GldtNode(Node):
 
         return wrapper
 
-    def create_timer(self, timer_period_sec: float, callback: Callable[[], None], *args: Any, **kwargs: Any) -> Any:
-        """``Node.create_timer`` whose callback may be cut short by a stop, as :meth:`guarded`'s
-        may: every timer of the graph's nodes publishes (diagnostics, links, report timeouts)."""
+    def create_timer(
+        self,
+        timer_period_sec: float,
+        callback: Callable[[], None],
+        callback_group: Any = None,
+        clock: Clock | None = None,
+        autostart: bool = True,
+    ) -> Any:
+        """``Node.create_timer`` on the steady clock unless ``clock`` is given (module docstring:
+        it keeps running under ``use_sim_time``), whose callback may be cut short by a stop, as
+        :meth:`guarded`'s may: every timer of the graph's nodes publishes (diagnostics, links,
+        report timeouts)."""
 
         def stop_tolerant() -> None:
             try:
@@ -97,7 +135,36 @@ class GldtNode(Node):
             except RuntimeError:
                 self._reraise_unless_stopping()
 
-        return super().create_timer(timer_period_sec, stop_tolerant, *args, **kwargs)
+        return super().create_timer(
+            timer_period_sec,
+            stop_tolerant,
+            callback_group=callback_group,
+            clock=clock if clock is not None else Clock(clock_type=ClockType.STEADY_TIME),
+            autostart=autostart,
+        )
+
+    def count_event(self, key: str, count: int = 1) -> None:
+        """Add ``count`` events to the counter ``key`` (:data:`PAIRS_SKIPPED`, :data:`STALE_DROPPED`,
+        or a node's own): reported in the diagnostics values, WARN in the status after they happened."""
+        if count > 0:
+            self.events[key] = self.events.get(key, 0) + count
+
+    def set_warning(self, key: str, text: str | None) -> None:
+        """Raise (``text``) or clear (``None``) the named WARN condition ``key``: while raised, the
+        node's diagnostics status is WARN and its message says ``key: text``. A change goes out
+        with the next link check (within :data:`LINK_CHECK_PERIOD_S`, once the node spins, so a
+        node raising one in its constructor never reports half its links); raising the same text
+        again publishes nothing."""
+        if text is None:
+            changed = self._warnings.pop(key, None) is not None
+        else:
+            changed = self._warnings.get(key) != text
+            self._warnings[key] = text
+        self._status_changed = self._status_changed or changed
+
+    def warnings(self) -> dict[str, str]:
+        """The named WARN conditions raised now (:meth:`set_warning`), key -> text."""
+        return dict(self._warnings)
 
     def _reraise_unless_stopping(self) -> None:
         """Called from an ``except RuntimeError``: Ctrl-C shut the context down while a callback
@@ -121,29 +188,48 @@ class GldtNode(Node):
             self.get_logger().warning(text)
 
     def _publish_if_links_changed(self) -> None:
-        if own_link_counts(self) != self._reported_links:
-            self._publish_diagnostics()
+        if self._status_changed or own_link_counts(self) != self._reported_links:
+            self._publish_diagnostics(regular=False)
 
-    def _publish_diagnostics(self) -> None:
+    def diagnostics_status(self) -> DiagnosticStatus:
+        """This node's status as it would be published now (:meth:`_publish_diagnostics`): OK, or
+        WARN with a message naming each reason (inputs ever dropped, skipped pairs or stale drops
+        since the last regular status, raised :meth:`set_warning` conditions)."""
         links = own_link_counts(self)
-        self._reported_links = links
         rate = 0.0
         if len(self._arrivals) >= 2 and self._arrivals[-1] > self._arrivals[0]:
             rate = (len(self._arrivals) - 1) / (self._arrivals[-1] - self._arrivals[0])
         mean_ms = 1000.0 * sum(self._processing) / len(self._processing) if self._processing else 0.0
-        status = DiagnosticStatus(
-            level=DiagnosticStatus.OK if self.frames_dropped == 0 else DiagnosticStatus.WARN,
+        reasons = [f"{self.frames_dropped} input(s) dropped"] if self.frames_dropped else []
+        for key, total in self.events.items():
+            recent = total - self._events_reported.get(key, 0)
+            if recent > 0:
+                reasons.append(f"{recent} {_EVENT_TEXT.get(key, key)} ({key}: {total} in all)")
+        reasons += [f"{key}: {text}" for key, text in self._warnings.items()]
+        return DiagnosticStatus(
+            level=DiagnosticStatus.WARN if reasons else DiagnosticStatus.OK,
             name=f"{STATUS_NAME_PREFIX}{self.get_name()}",
             hardware_id=self.get_namespace(),
-            message="ok" if self.frames_dropped == 0 else f"{self.frames_dropped} input(s) dropped",
+            message="; ".join(reasons) or "ok",
             values=[
                 KeyValue(key="input_rate_hz", value=f"{rate:.2f}"),
                 KeyValue(key="processing_time_ms", value=f"{mean_ms:.2f}"),
                 KeyValue(key="inputs", value=str(self.frames_in)),
                 KeyValue(key="dropped", value=str(self.frames_dropped)),
+                *[KeyValue(key=key, value=str(total)) for key, total in self.events.items()],
+                *[KeyValue(key=f"warning:{key}", value=text) for key, text in self._warnings.items()],
                 *link_key_values(links),
             ],
         )
+
+    def _publish_diagnostics(self, regular: bool = True) -> None:
+        """Publish :meth:`diagnostics_status`. A ``regular`` (periodic) status ends the period its
+        event counts are judged over; one published because links or warnings changed does not."""
+        status = self.diagnostics_status()
+        self._reported_links = parse_link_counts(status)
+        self._status_changed = False
+        if regular:
+            self._events_reported = dict(self.events)
         array = DiagnosticArray(status=[status])
         array.header.stamp = self.get_clock().now().to_msg()
         self._diagnostics.publish(array)
