@@ -69,9 +69,10 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "frame_pair_buffer": (
         ParamSpec(
             "image_transport",
-            "auto",
-            "Camera input: Image on image_raw, CompressedImage on image_raw/compressed, or both (auto)",
-            choices=("auto", "raw", "compressed"),
+            "raw",
+            "Camera input, one topic, never both: Image on camera/image_raw (raw) or CompressedImage on "
+            "camera/image_raw/compressed (compressed); pipeline --bag sets it to the bag's",
+            choices=("raw", "compressed"),
         ),
         _CAMERA_QOS,
         ParamSpec(

@@ -1,7 +1,8 @@
 """frame_pair_buffer: the only node that holds full-resolution camera frames.
 
-It decodes camera images (``sensor_msgs/Image`` in any supported encoding, or JPEG/PNG
-``CompressedImage``), keeps the current and previous frame, and announces each frame to the
+It decodes camera images (``sensor_msgs/Image`` in any supported encoding on ``camera/image_raw``,
+or JPEG/PNG ``CompressedImage`` on ``camera/image_raw/compressed``: one of them, by
+``image_transport``), keeps the current and previous frame, and announces each frame to the
 tracker with a pixel-free ``FrameTick``. When the mode scheduler answers with its decision for
 that frame, it sends either the resized frame pair to the global detector (GLOBAL) or the ROI
 crops to the local detector (LOCAL). Full frames therefore never cross a topic.
@@ -25,15 +26,20 @@ from sensor_msgs.msg import CompressedImage, Image
 
 from gldt_core.detect import GlobalDetector, LocalDetector
 from gldt_core.detect.postprocess import Letterbox
+from gldt_core.system.stamps import StaleMessage
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import bgr_to_image, image_to_bgr, msgs_to_rois, stamp_nanoseconds, track_array_to_rows
-from gldt_ros.runtime.node_base import GldtNode, run_node
+from gldt_ros.runtime.node_base import PAIRS_SKIPPED, GldtNode, run_node
 
 #: Frames kept while waiting for the scheduler's answer (the answer normally comes within one).
 PENDING_FRAMES = 8
 
 #: Frame pairs the publisher keeps for resending (see ``__init__``).
 PAIRS_KEPT = 2
+
+#: Unanswered pairs remembered for counting skips; older ones are forgotten uncounted (a detector
+#: that is down answers none, which is not a skip).
+PAIRS_TRACKED = 64
 
 
 @dataclass
@@ -68,14 +74,21 @@ class FramePairBuffer(GldtNode):
         # (frame index, stamp in ns) of the last pair the global detector answered: that frame's
         # image need not travel again as the next pair's previous one.
         self._global_answered: tuple[int, int] | None = None
-        camera_qos = qos.camera_qos(self.param("camera_qos"))
+        # Pairs sent to the global detector and not answered yet, frame index -> stamp [ns]: one
+        # that a later pair's answer overtakes was skipped (the detector keeps only the newest).
+        self._pairs_unanswered: OrderedDict[int, int] = OrderedDict()
+        # One camera input, never both: a driver that publishes raw and compressed would otherwise
+        # feed every frame twice (and each twin resets the scheduler: its stamp is not newer).
         transport = self.param("image_transport")
-        if transport in ("auto", "compressed"):
-            self.create_subscription(
-                CompressedImage, topics.IMAGE_COMPRESSED, self.guarded(self.on_image, "image"), camera_qos
-            )
-        if transport in ("auto", "raw"):
-            self.create_subscription(Image, topics.IMAGE_RAW, self.guarded(self.on_image, "image"), camera_qos)
+        message_type, topic = (
+            (CompressedImage, topics.IMAGE_COMPRESSED) if transport == "compressed" else (Image, topics.IMAGE_RAW)
+        )
+        camera = self.create_subscription(
+            message_type, topic, self.guarded(self.on_image, "image"), qos.camera_qos(self.param("camera_qos"))
+        )
+        self.get_logger().info(
+            f"camera input: {message_type.__name__} on {camera.topic_name} (image_transport: {transport})"
+        )
         self.create_subscription(
             SchedulerState, topics.SCHEDULER_STATE, self.guarded(self.on_decision, "decision"), qos.RELIABLE
         )
@@ -119,7 +132,7 @@ class FramePairBuffer(GldtNode):
     def on_decision(self, decision: SchedulerState) -> None:
         index = int(decision.frame_index)
         if index not in self._frames:
-            raise ValueError(f"scheduler decision for frame {index}, which is no longer buffered")
+            raise StaleMessage(f"scheduler decision for frame {index}, which is no longer buffered")
         buffered = self._frames[index]
         header, frame = buffered.header, buffered.image
         previous_buffered = self._frames.get(self._previous_index) if self._previous_index is not None else None
@@ -139,6 +152,7 @@ class FramePairBuffer(GldtNode):
             previous_image = (
                 Image(header=header) if prepared_previous is None else bgr_to_image(prepared_previous, header)
             )
+            self._note_pair_sent(index, stamp_nanoseconds(header.stamp))
             self.pairs.publish(
                 FramePair(
                     header=header,
@@ -184,9 +198,34 @@ class FramePairBuffer(GldtNode):
         self._previous_index = index
 
     def on_detections(self, array: DetectionArray) -> None:
-        """Note which frame the global detector answered last (see :meth:`detector_holds_frame`)."""
+        """Note which frame the global detector answered last (see :meth:`detector_holds_frame`),
+        and count the pairs it skipped to get there."""
         if array.mode == DetectionArray.MODE_GLOBAL:
             self._global_answered = (int(array.frame_index), stamp_nanoseconds(array.header.stamp))
+            self._count_skipped_pairs(*self._global_answered)
+
+    def _note_pair_sent(self, index: int, stamp_ns: int) -> None:
+        self._pairs_unanswered[index] = stamp_ns
+        while len(self._pairs_unanswered) > PAIRS_TRACKED:
+            self._pairs_unanswered.popitem(last=False)
+
+    def _count_skipped_pairs(self, index: int, stamp_ns: int) -> None:
+        """The global detector answered the pair of frame ``index``: the pairs sent before it and
+        still unanswered were skipped (its queue keeps the newest ``pair_queue_depth``), and are
+        counted as ``pairs_skipped`` in the diagnostics. Stamps, not indices, say "before": a
+        restarted buffer counts frames from 0 again."""
+        if self._pairs_unanswered.get(index) != stamp_ns:
+            return  # not a pair of this stream (or long forgotten)
+        skipped = [i for i, stamp in self._pairs_unanswered.items() if stamp < stamp_ns]
+        for i in [*skipped, index]:
+            del self._pairs_unanswered[i]
+        if skipped:
+            self.count_event(PAIRS_SKIPPED, len(skipped))
+            self.warn_throttled(
+                "pairs skipped",
+                f"the global detector skipped {len(skipped)} frame pair(s) before frame {index} "
+                "(it is slower than the camera; pair_queue_depth keeps only the newest)",
+            )
 
     def detector_holds_frame(self, index: int) -> bool:
         """Whether the global detector's last answered pair had frame ``index`` of this stream as
