@@ -10,6 +10,12 @@ makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver` play
 ``--record OUT.mcap`` writes every output topic, with its type, to an MCAP file. The run ends at
 the bag's end or on Ctrl-C, and the child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if
 they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`).
+
+The player restamps the bag's frames to the time the replay starts (``--keep-bag-stamps`` keeps
+them), sends each frame's camera_info first, and publishes ``/clock``
+(:mod:`gldt_ros.launcher.replay`). ROS arguments after ``--ros-args`` (remaps, ``-p name:=value``,
+``--params-file``, ``--log-level``) go to every node and to the player, as ``ros2 launch`` would
+hand them on: ``pipeline --bag B --ros-args -p use_sim_time:=true -r camera/image_raw:=/cam/image``.
 """
 
 from __future__ import annotations
@@ -17,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -59,13 +66,55 @@ def node_environment(tune_malloc: bool, executor: str | None = None) -> dict[str
     return env
 
 
+def split_ros_args(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """``(pipeline's own arguments, the ROS arguments)``: every ``--ros-args`` block up to a ``--``
+    or the end, as rcl reads them, joined into one ``--ros-args ...`` list (empty without any)."""
+    own: list[str] = []
+    ros: list[str] = []
+    inside = False
+    for token in argv:
+        if token == "--ros-args":
+            inside = True
+        elif inside and token == "--":
+            inside = False
+        elif inside:
+            ros.append(token)
+        else:
+            own.append(token)
+    return own, (["--ros-args", *ros] if ros else [])
+
+
+#: Remaps the graph cannot take from the command line: they would give all five nodes one name,
+#: or move them out of the namespace ``pipeline`` waits for (``--namespace`` does that).
+_REFUSED_REMAP = re.compile(r"^(?:[^:=]+:)?(?:__node|__name|__ns):=")
+
+
+def check_ros_args(ros_args: Sequence[str]) -> str | None:
+    """Why ``ros_args`` cannot go to every node, or ``None`` when they can."""
+    for flag, value in zip(ros_args, ros_args[1:]):
+        if flag in ("-r", "--remap") and _REFUSED_REMAP.match(value):
+            return f"--ros-args {flag} {value}: node names are fixed; use --namespace for the graph's namespace"
+    return None
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="pipeline", description=__doc__.split("\n\n")[0])
+    own, ros_args = split_ros_args(list(sys.argv[1:] if argv is None else argv))
+    parser = argparse.ArgumentParser(
+        prog="pipeline",
+        description=__doc__.split("\n\n")[0],
+        epilog="ROS arguments for every node follow --ros-args (remaps, -p name:=value, --params-file, --log-level).",
+    )
     parser.add_argument("--bag", type=Path, help="rosbag2 MCAP (file or folder) to replay into the graph")
     parser.add_argument("--record", type=Path, help="write the graph's outputs to this MCAP file")
     pace = parser.add_mutually_exclusive_group()
     pace.add_argument("--rate", type=float, default=1.0, help="replay speed factor (default 1.0)")
     pace.add_argument("--lockstep", action="store_true", help="publish frame t+1 only after tracks for frame t")
+    parser.add_argument(
+        "--keep-bag-stamps",
+        action="store_true",
+        help="replay the bag's header stamps as recorded (default: moved to the replay's start time, "
+        "intervals kept, so a planner's staleness check accepts them)",
+    )
     parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: config/gldt.yaml)")
     parser.add_argument("--namespace", default="", help="namespace of the graph (one per camera)")
     parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
@@ -107,7 +156,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         help=f"rclpy executor of the node processes and of the player (default: ${EXECUTOR_ENV}, else events; "
         "single is rclpy's Python executors, see gldt_ros.runtime.executor; --in-process keeps a thread pool)",
     )
-    args = parser.parse_args(argv)
+    args = parser.parse_args(own)
+    args.ros_args = ros_args
+    refused = check_ros_args(ros_args)
+    if refused is not None:
+        parser.error(refused)
     if args.executor is None:
         try:
             args.executor = executor_kind()
@@ -119,6 +172,18 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         parser.error(f"--spare-delay must be a number of seconds >= 0, got {args.spare_delay}")
     if args.bag is not None and not args.bag.exists():
         parser.error(f"--bag {args.bag}: no such file or folder")
+    if args.keep_bag_stamps and args.bag is None:
+        parser.error("--keep-bag-stamps needs --bag")
+    args.image_transport = None  # the graph's own default (raw)
+    if args.bag is not None:
+        from gldt_ros.launcher.replay import bag_image_transport
+
+        try:
+            args.image_transport = bag_image_transport(args.bag)
+        except (ValueError, OSError) as error:
+            parser.error(f"--bag {args.bag}: {error}")
+        if args.image_transport is None:
+            parser.error(f"--bag {args.bag}: no sensor_msgs/Image or CompressedImage messages")
     args.params = args.params or default_params_file()
     if not args.params.is_file():
         parser.error(f"--params {args.params}: no such file")
@@ -131,7 +196,8 @@ LOCKSTEP_OVERRIDES = {"mode_scheduler": ["-p", "lockstep:=true"], "frame_pair_bu
 
 
 def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
-    """``--ros-args`` of one node: the parameter file plus the lockstep overrides it needs.
+    """``--ros-args`` of one node: the parameter file, the image transport of the bag replayed,
+    the lockstep overrides it needs, then the user's ``--ros-args`` (last, so they win).
 
     In lockstep the scheduler gives up waiting for a LOCAL frame's detections when the player
     gives up waiting for its tracks (``--frame-timeout``): past that the player has moved on, and
@@ -139,20 +205,30 @@ def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
     queue up behind it faster than it plans them.
     """
     ros_args = ["--ros-args", "--params-file", str(args.params)]
-    if not args.lockstep:
-        return ros_args
-    extra = list(LOCKSTEP_OVERRIDES.get(name, []))
-    if name == "mode_scheduler":
-        extra += ["-p", f"report_timeout:={min(max(args.frame_timeout, 0.1), 600.0)}"]
-    return ros_args + extra
+    if name == "frame_pair_buffer" and getattr(args, "image_transport", None):
+        ros_args += ["-p", f"image_transport:={args.image_transport}"]
+    if args.lockstep:
+        ros_args += LOCKSTEP_OVERRIDES.get(name, [])
+        if name == "mode_scheduler":
+            ros_args += ["-p", f"report_timeout:={min(max(args.frame_timeout, 0.1), 600.0)}"]
+    return ros_args + list(getattr(args, "ros_args", []))
 
 
 def node_command(name: str, args: argparse.Namespace) -> list[str]:
     """Command line of one node process."""
     command = [sys.executable, "-m", NODES[name], *node_ros_args(name, args)]
     if args.namespace:
-        command += ["-r", f"__ns:=/{args.namespace.strip('/')}"]
+        command += ["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"]
     return command
+
+
+def player_ros_args(args: argparse.Namespace) -> list[str] | None:
+    """``rclpy.init`` arguments of ``pipeline``'s own process (its player and recorder, and the
+    nodes ``--in-process``): the namespace and the user's ``--ros-args``, so a remapped camera
+    topic is also the one the bag is played onto."""
+    ros_args = ["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"] if args.namespace else []
+    ros_args += list(getattr(args, "ros_args", []))
+    return ros_args or None
 
 
 #: Default seconds after start-up, and after each restart, before a spare is started: its imports
@@ -361,7 +437,9 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     use_graph_dds_profile()
     use_frames_profile_if_shipped()  # this process plays the camera (and hosts the buffer --in-process)
-    rclpy.init(args=["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"] if args.namespace else None)
+    rclpy.init(args=player_ros_args(args))
+    if args.image_transport is not None:
+        print(f"pipeline: the bag's frames go to image_transport {args.image_transport}", flush=True)
     stop_requested = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop_requested.set())
     children: NodeProcesses | None = None

@@ -3,6 +3,21 @@
 :class:`GraphDriver` knows the graph's nodes (:data:`gldt_ros.interface.graph.NODES`) and judges
 the link reports they publish (:mod:`gldt_ros.interface.graph_links`); the command itself
 (:mod:`gldt_ros.launcher.pipeline`) starts and supervises the node processes.
+
+What the player sends, as a camera driver would:
+
+- one image topic, the one the offline bag reader uses (compressed where the bag has both), which
+  ``pipeline`` also sets as frame_pair_buffer's ``image_transport``;
+- each frame's camera_info before its image (messages of one log time: images last), and the
+  bag's first camera_info before the first image even where the bag logged it later, so frame 0
+  has its bearings;
+- header stamps of images, camera_info and ground truth moved to the wall-clock time of the
+  replay's start (:class:`Restamp`; the bag's intervals are kept, and lockstep answers and
+  recordings carry the new stamps), unless ``--keep-bag-stamps``: a bag's stamps start near 0, and a
+  planner's staleness check rejects every track stamped 1970;
+- ``/clock`` (``rosgraph_msgs/Clock``, :class:`ReplayClock`) following the frames: each frame's
+  stamp before the frame, and in a paced replay the bag's time in between, every
+  :data:`CLOCK_PERIOD_S`. Nodes run with ``use_sim_time:=true`` take their time from it.
 """
 
 from __future__ import annotations
@@ -10,15 +25,26 @@ from __future__ import annotations
 import argparse
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
 
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
 
-from gldt_core.io.bag import IMAGE_TYPES, bag_channel_types, bag_messages
-from gldt_core.io.cdr import header_stamp_ns
-from gldt_core.io.mcap_file import McapWriter
+from gldt_core.io.bag import (
+    CAMERA_INFO_TYPE,
+    COMPRESSED_TYPE,
+    GROUND_TRUTH_TYPE,
+    IMAGE_TYPE,
+    IMAGE_TYPES,
+    bag_channel_types,
+    bag_messages,
+)
+from gldt_core.io.cdr import header_stamp_ns, with_header_stamp
+from gldt_core.io.mcap_file import McapMessage, McapWriter
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.graph import NODES
 from gldt_ros.interface.graph_links import (
@@ -59,6 +85,99 @@ RECORDED_TOPICS = {
     topics.SCHEDULER_STATE: "gldt_msgs/msg/SchedulerState",
 }
 
+#: ``image_transport`` of frame_pair_buffer -> the image type the player sends.
+TRANSPORT_TYPES = {"raw": IMAGE_TYPE, "compressed": COMPRESSED_TYPE}
+#: Types whose first field is a ``std_msgs/Header``: the player restamps these (:class:`Restamp`).
+STAMPED_TYPES = frozenset({*IMAGE_TYPES, CAMERA_INFO_TYPE, GROUND_TRUTH_TYPE})
+#: Seconds between ``/clock`` messages while a paced replay waits for its next message.
+CLOCK_PERIOD_S = 0.01
+#: Where rclpy's time source listens (absolute: one clock for every namespace).
+CLOCK_TOPIC = "/clock"
+#: Images read ahead when looking for the bag's first camera_info (:func:`bag_head`).
+HEAD_IMAGES = 64
+
+
+def bag_image_transport(bag: Path) -> str | None:
+    """The ``image_transport`` that receives ``bag``'s frames: the image type the offline reader
+    (:class:`gldt_core.io.bag.BagSource`) plays, compressed where the bag has both; ``None``
+    without images. Read from the files' summaries, else from the messages up to the first image."""
+    types = set(bag_channel_types(bag).values()) & IMAGE_TYPES
+    if not types:
+        for message in bag_messages(bag):
+            if message.msgtype in IMAGE_TYPES:
+                types = {message.msgtype}
+                break
+    if COMPRESSED_TYPE in types:
+        return "compressed"
+    return "raw" if IMAGE_TYPE in types else None
+
+
+def bag_head(bag: Path, image_type: str) -> tuple[int | None, McapMessage | None]:
+    """``(stamp [ns] of the first image of image_type, the first camera_info)`` of ``bag``, reading
+    no further than both, or :data:`HEAD_IMAGES` images when it has no camera_info near its start."""
+    first_stamp: int | None = None
+    images = 0
+    for message in bag_messages(bag, log_time_order=True):
+        if message.msgtype == CAMERA_INFO_TYPE:
+            return first_stamp, message
+        if message.msgtype == image_type:
+            first_stamp = header_stamp_ns(message.data) if first_stamp is None else first_stamp
+            images += 1
+            if images >= HEAD_IMAGES:
+                break
+    return first_stamp, None
+
+
+def frame_ordered(messages: Iterable[McapMessage]) -> Iterator[McapMessage]:
+    """``messages`` (in log-time order) with each run of equal log times reordered so that its
+    images come last: a frame's camera_info (and ground truth), logged at the frame's time, then
+    reaches the graph before the frame. Otherwise in the same order."""
+    group: list[McapMessage] = []
+    for message in messages:
+        if group and message.log_time_ns != group[0].log_time_ns:
+            yield from sorted(group, key=lambda m: m.msgtype in IMAGE_TYPES)  # stable: keeps the rest's order
+            group = []
+        group.append(message)
+    yield from sorted(group, key=lambda m: m.msgtype in IMAGE_TYPES)
+
+
+class Restamp:
+    """The header stamps a replay sends: the bag's plus one fixed offset, which maps the bag's first
+    frame to the wall-clock time the replay starts (``keep``: no offset). Intervals stay exact, in
+    nanoseconds; stamps before the bag's first frame are clamped at 0, which a stamp cannot go below."""
+
+    def __init__(self, first_stamp_ns: int | None, keep: bool, now_ns: int | None = None) -> None:
+        if keep or first_stamp_ns is None:
+            self.offset_ns = 0
+        else:
+            self.offset_ns = (time.time_ns() if now_ns is None else now_ns) - first_stamp_ns
+
+    def stamp_ns(self, bag_stamp_ns: int) -> int:
+        return max(0, bag_stamp_ns + self.offset_ns)
+
+    def message(self, message: McapMessage) -> bytes:
+        """The message's CDR bytes as sent: restamped where its type starts with a header."""
+        if self.offset_ns == 0 or message.msgtype not in STAMPED_TYPES:
+            return message.data
+        return with_header_stamp(message.data, self.stamp_ns(header_stamp_ns(message.data)))
+
+
+class ReplayClock:
+    """``/clock`` of a replay: publishes a time only when it is later than the last one sent."""
+
+    def __init__(self, node: Node) -> None:
+        # Reliable matches rclpy's best-effort /clock subscription as well as reliable ones.
+        self.publisher = node.create_publisher(
+            Clock, CLOCK_TOPIC, QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE)
+        )
+        self.last_ns = -1
+
+    def advance(self, stamp_ns: int) -> None:
+        if stamp_ns > self.last_ns:
+            self.last_ns = stamp_ns
+            seconds, nanoseconds = divmod(stamp_ns, 1_000_000_000)
+            self.publisher.publish(Clock(clock=Time(sec=seconds, nanosec=nanoseconds)))
+
 
 class GraphDriver(Node):
     """Replays a bag (paced or in lockstep with ``/gldt/tracks``) and records the outputs.
@@ -72,6 +191,11 @@ class GraphDriver(Node):
     def __init__(self, args: argparse.Namespace) -> None:
         super().__init__("gldt_pipeline")
         self.args = args
+        #: The nodes whose links a replay waits for (every node of the graph).
+        self.graph_nodes = list(NODES)
+        #: The image type the player sends (``pipeline`` picks the bag's, :func:`bag_image_transport`).
+        self.image_type = TRANSPORT_TYPES[getattr(args, "image_transport", None) or "raw"]
+        self.clock: ReplayClock | None = None
         self._answered: set[int] = set()
         self._published_at: dict[int, float] = {}
         self.latencies_s: list[float] = []
@@ -142,7 +266,7 @@ class GraphDriver(Node):
             waiting = {name for name in waiting if not self._new_process_visible(name, restarted[name])}
             if waiting:
                 stop.wait(0.02)
-        linked = not waiting and self.wait_until_linked(list(NODES), stop, max(0.0, deadline - time.monotonic()))
+        linked = not waiting and self.wait_until_linked(self.graph_nodes, stop, max(0.0, deadline - time.monotonic()))
         with self._answered_cv:
             for name, endpoints in restarted.items():
                 if self._restarted.get(name) is endpoints:
@@ -220,6 +344,8 @@ class GraphDriver(Node):
         """
         image_publishers = []
         for topic, msgtype in bag_channel_types(self.args.bag).items():
+            if msgtype in IMAGE_TYPES and msgtype != self.image_type:
+                continue  # the other transport: not played (see replay)
             try:
                 publisher = self._publisher(topic, msgtype)
             except ValueError as error:
@@ -236,7 +362,7 @@ class GraphDriver(Node):
             if image_publishers and not stop.is_set():
                 self.get_logger().warning(f"no subscriber matched the bag's image topic after {timeout_s:.0f} s")
             return
-        self.wait_until_linked(list(NODES), stop, max(0.0, deadline - time.monotonic()))
+        self.wait_until_linked(self.graph_nodes, stop, max(0.0, deadline - time.monotonic()))
 
     def wait_until_linked(self, node_names: list[str], stop: threading.Event, timeout_s: float) -> bool:
         """Block until each named node, and this one, has matched every endpoint this process sees
@@ -263,18 +389,30 @@ class GraphDriver(Node):
         return False
 
     def replay(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str:
-        """Play the bag; return a one-line summary."""
+        """Play the bag (module docstring: which topics, in which order, with which stamps, and the
+        clock); return a one-line summary."""
+        if self.clock is None:
+            self.clock = ReplayClock(self)
         self._prepare_publishers(stop)
         frames = 0
         skipped_topics: set[str] = set()
         waited_out = 0
+        first_image_ns, first_camera_info = bag_head(self.args.bag, self.image_type)
+        restamp = Restamp(first_image_ns, keep=bool(getattr(self.args, "keep_bag_stamps", False)))
+        camera_info_sent = False
         start_wall = time.monotonic()
         first_log_ns: int | None = None
+        clock_offset_ns = 0  # this replay's stamps minus the bag's log times: the clock between frames
         last_stamp: int | None = None
         try:
-            for message in bag_messages(self.args.bag, log_time_order=True):
+            for message in frame_ordered(bag_messages(self.args.bag, log_time_order=True)):
                 if stop.is_set():
                     break
+                if message.msgtype in IMAGE_TYPES and message.msgtype != self.image_type:
+                    if message.topic not in skipped_topics:
+                        skipped_topics.add(message.topic)
+                        self.get_logger().info(f"not replaying {message.topic}: the graph reads {self.image_type}")
+                    continue
                 try:
                     publisher = self._publisher(message.topic, message.msgtype)
                 except ValueError as error:
@@ -282,19 +420,29 @@ class GraphDriver(Node):
                         skipped_topics.add(message.topic)
                         self.get_logger().warning(f"not replaying topic {message.topic}: {error}")
                     continue
+                data = restamp.message(message)
+                if first_log_ns is None:
+                    first_log_ns = message.log_time_ns
+                    first_stamp = header_stamp_ns(data) if message.msgtype in STAMPED_TYPES else None
+                    clock_offset_ns = (first_stamp if first_stamp is not None else restamp.offset_ns) - first_log_ns
                 if not self.args.lockstep:
-                    first_log_ns = message.log_time_ns if first_log_ns is None else first_log_ns
                     due = start_wall + (message.log_time_ns - first_log_ns) / 1e9 / self.args.rate
-                    delay = due - time.monotonic()
-                    if delay > 0:
-                        stop.wait(delay)
+                    self._paced_wait(due, stop, start_wall, first_log_ns + clock_offset_ns)
+                if message.msgtype == CAMERA_INFO_TYPE:
+                    camera_info_sent = True
                 if message.msgtype in IMAGE_TYPES:
-                    last_stamp = header_stamp_ns(message.data)
+                    last_stamp = header_stamp_ns(data)
                     relinked = self._relink_after_restarts(stop, dead) if self.args.lockstep else None
                     if relinked is not None:
                         print(f"pipeline: {relinked}; next frame stamped {last_stamp}", flush=True)
+                    self.clock.advance(last_stamp)
+                    if not camera_info_sent and first_camera_info is not None:
+                        # The bag logged its first camera_info after this frame: send it first.
+                        info = self._publisher(first_camera_info.topic, first_camera_info.msgtype)
+                        info.publish(with_header_stamp(first_camera_info.data, last_stamp))
+                    camera_info_sent = True
                     self.note_published(last_stamp)
-                publisher.publish(message.data)
+                publisher.publish(data)
                 if message.msgtype in IMAGE_TYPES:
                     frames += 1
                     if self.args.lockstep and last_stamp is not None and not self._wait_answer(last_stamp, stop, dead):
@@ -317,6 +465,16 @@ class GraphDriver(Node):
             f"pipeline: replayed {frames} frames in {elapsed:.1f} s ({frames / max(elapsed, 1e-9):.1f} fps), "
             f"{self.tracks_received} track messages, {waited_out} frames without an answer{latency}"
         )
+
+    def _paced_wait(self, due: float, stop: threading.Event, start_wall: float, clock_start_ns: int) -> None:
+        """Wait until ``due`` (monotonic), moving ``/clock`` along the bag's time meanwhile."""
+        assert self.clock is not None
+        while not stop.is_set():
+            now = time.monotonic()
+            self.clock.advance(clock_start_ns + int(max(0.0, now - start_wall) * self.args.rate * 1e9))
+            if now >= due:
+                return
+            stop.wait(min(due - now, CLOCK_PERIOD_S))
 
     def _wait_answer(self, stamp_ns: int, stop: threading.Event, dead: Callable[[], list[str]]) -> bool:
         deadline = time.monotonic() + self.args.frame_timeout
