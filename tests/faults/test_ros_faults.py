@@ -34,12 +34,13 @@ RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 class InProcessGraph:
     """The graph's nodes in this process, plus a probe that publishes camera input and counts tracks."""
 
-    def __init__(self) -> None:
+    def __init__(self, transport: str = "compressed") -> None:
         from gldt_msgs.msg import TrackArray
         from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 
         rclpy.init()
-        args = ["--ros-args", "-p", "camera_qos:=reliable"]
+        # The buffer reads one camera input (``image_transport``); the probe publishes both kinds.
+        args = ["--ros-args", "-p", "camera_qos:=reliable", "-p", f"image_transport:={transport}"]
         by_name = {name: importlib.import_module(module).create_node(cli_args=args) for name, module in NODES.items()}
         self.nodes = list(by_name.values())
         self.buffer, self.tracker = by_name["frame_pair_buffer"], by_name["jptrack_tracker"]
@@ -54,9 +55,8 @@ class InProcessGraph:
             self.executor.add_node(node)
         self.thread = start_spin_thread(self.executor)
         deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and (
-            self.raw.get_subscription_count() == 0 or self.compressed.get_subscription_count() == 0
-        ):
+        camera = self.raw if transport == "raw" else self.compressed
+        while time.monotonic() < deadline and camera.get_subscription_count() == 0:
             time.sleep(0.05)
         self.stamp = 0
 
@@ -115,6 +115,14 @@ def graph():
     graph.close()
 
 
+@pytest.fixture()
+def raw_graph():
+    """The graph reading ``camera/image_raw`` (the default transport)."""
+    graph = InProcessGraph("raw")
+    yield graph
+    graph.close()
+
+
 def sky(width: int, height: int) -> np.ndarray:
     frame = np.zeros((height, width, 3), np.uint8)
     frame[:] = (200, 170, 140)
@@ -122,14 +130,12 @@ def sky(width: int, height: int) -> np.ndarray:
     return frame
 
 
-def test_bad_camera_input_costs_only_that_frame(graph: InProcessGraph) -> None:
-    from sensor_msgs.msg import CameraInfo
-
+def test_bad_raw_images_cost_only_that_frame(raw_graph: InProcessGraph) -> None:
+    graph = raw_graph
     frame = sky(640, 480)
-    graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(frame, graph.header())), True)
+    graph.send_and_wait(partial(graph.raw.publish, raw_message(frame, "bgr8", graph.header())), True)
     dropped = graph.buffer.frames_dropped
     bad_inputs = [
-        lambda: graph.compressed.publish(_garbage_jpeg(graph.header())),
         lambda: graph.raw.publish(raw_message(frame, "yuv422", graph.header())),
         lambda: graph.raw.publish(raw_message(frame, "bgr8", graph.header(), data=frame.tobytes()[:1000])),
         lambda: graph.raw.publish(raw_message(np.zeros((0, 0, 3), np.uint8), "bgr8", graph.header())),
@@ -140,15 +146,46 @@ def test_bad_camera_input_costs_only_that_frame(graph: InProcessGraph) -> None:
     # The node is still up, and every supported encoding is processed after the bad frames.
     for encoding, payload in (("bgr8", frame), ("rgb8", frame[:, :, ::-1].copy()), ("mono8", frame[:, :, 0].copy())):
         graph.send_and_wait(partial(graph.raw.publish, raw_message(payload, encoding, graph.header())), True)
+
+
+def test_bad_camera_input_costs_only_that_frame(graph: InProcessGraph) -> None:
+    from sensor_msgs.msg import CameraInfo
+
+    frame = sky(640, 480)
+    graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(frame, graph.header())), True)
+    dropped = graph.buffer.frames_dropped
+    graph.send_and_wait(lambda: graph.compressed.publish(_garbage_jpeg(graph.header())), expect_answer=False)
+    assert graph.buffer.frames_dropped == dropped + 1
+    graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(frame, graph.header())), True)
     # A resolution change mid-stream re-initialises and goes on.
     graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(sky(1280, 720), graph.header())), True)
-    # NaN camera_info: logged and ignored, bearings stay invalid, tracking goes on.
-    info = CameraInfo(width=1280, height=720)
-    info.k = [float("nan")] * 9
-    graph.info.publish(info)
+    # Unusable camera_info: one WARN in the tracker's diagnostics, bearings invalid, tracks flow.
+    good_k = [900.0, 0.0, 640.0, 0.0, 900.0, 360.0, 0.0, 0.0, 1.0]
+    assert "camera_info" in graph.tracker.warnings()  # none received yet
+
+    def publish_info(usable: bool, **fields) -> None:
+        graph.info.publish(CameraInfo(width=1280, height=720, **fields))
+        deadline = time.monotonic() + 5.0
+        while time.monotonic() < deadline and (graph.tracker.camera is not None) != usable:
+            time.sleep(0.02)
+
+    publish_info(True, k=good_k, distortion_model="plumb_bob", d=[0.0] * 5)
     graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(sky(1280, 720), graph.header())), True)
-    assert graph.tracker.intrinsics is None
-    assert all(not t.bearing_valid for t in graph.tracks[-1].tracks)
+    assert graph.tracker.camera is not None and "camera_info" not in graph.tracker.warnings()
+    broken = {
+        "NaN in K": {"k": [float("nan")] * 9, "distortion_model": "plumb_bob", "d": [0.0] * 5},
+        "zeros in K": {"k": [0.0] * 9, "distortion_model": "plumb_bob", "d": [0.0] * 5},
+        "D of the wrong length": {"k": good_k, "distortion_model": "plumb_bob", "d": [0.1, 0.01, 0.0]},
+        "unknown distortion model": {"k": good_k, "distortion_model": "kannala_brandt_9", "d": [0.0] * 9},
+    }
+    for case, fields in broken.items():
+        publish_info(False, **fields)
+        graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(sky(1280, 720), graph.header())), True)
+        assert graph.tracker.camera is None, case
+        warning = graph.tracker.warnings().get("camera_info", "")
+        assert "camera_info" in warning and "\n" not in warning, f"{case}: {warning!r}"
+        assert graph.tracker.diagnostics_status().level == graph.tracker.diagnostics_status().WARN, case
+        assert all(not t.bearing_valid for t in graph.tracks[-1].tracks), case
 
 
 def _garbage_jpeg(header):
