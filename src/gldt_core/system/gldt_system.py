@@ -87,6 +87,7 @@ class SystemState:
     roi_groups: tuple[tuple[int, ...], ...]
     tracks: np.ndarray  # (M, 6) output of the last frame
     detections: np.ndarray  # (N, 5) detections fed to the tracker on the last frame
+    class_probabilities: np.ndarray  # (N, 3) their drone, bird and airplane probabilities
     global_frames: int
     local_frames: int
     reinitialisations: int
@@ -225,6 +226,7 @@ class GLDTSystem:
         self._tracks = np.zeros((0, 6))
         self._track_classes = np.zeros((0, 2))
         self._detections = np.zeros((0, 5))
+        self._probabilities = np.zeros((0, PROBABILITY_COLUMNS))
         self.class_evidence = ClassEvidence()
 
     # ------------------------------------------------------------------ state
@@ -241,6 +243,7 @@ class GLDTSystem:
             roi_groups=layout.groups,
             tracks=self._tracks.copy(),
             detections=self._detections.copy(),
+            class_probabilities=self._probabilities.copy(),
             global_frames=self._global_frames,
             local_frames=self._local_frames,
             reinitialisations=self._reinitialisations,
@@ -391,6 +394,7 @@ class GLDTSystem:
         self._tracks = tracks
         self._track_classes = classes
         self._detections = detections
+        self._probabilities = probabilities
         self._frame_index += 1
         return tracks
 

@@ -113,7 +113,7 @@ class PlannerStream:
         """
         self.class_evidence.update(matched_rows, detections, probabilities)
         live = [tr for tr in tracks if tr.state in _STREAM_STATE]
-        sizes = [(self._published_id(tr), _measured_size(tr)) for tr in live]
+        sizes = [(self.published_id(tr), _measured_size(tr)) for tr in live]
         estimates = self.looming.update(t, sizes)
         entries = [
             self._entry(tr, _STREAM_STATE[tr.state], estimates[pid], camera) for tr, (pid, _) in zip(live, sizes)
@@ -138,7 +138,8 @@ class PlannerStream:
         self.class_evidence.reset()
         self.looming.reset()
 
-    def _published_id(self, track: Track) -> int:
+    def published_id(self, track: Track) -> int:
+        """The id ``track`` is published with (the tracker's, above the ids before the last restart)."""
         return track.track_id + self._id_offset
 
     def _entry(self, track: Track, state: str, looming: LoomingEstimate, camera: CameraModel | None) -> PlannerTrack:
@@ -146,7 +147,7 @@ class PlannerStream:
         covariance = track.covariance
         class_id, confidence = self.class_evidence.label(track.track_id)
         return PlannerTrack(
-            track_id=self._published_id(track),
+            track_id=self.published_id(track),
             state=state,
             center_x=cx,
             center_y=cy,
