@@ -333,3 +333,46 @@ def test_tracks_keep_one_filter_per_id_and_forget_absent_ones() -> None:
     assert again[3] is NO_ESTIMATE
     tracks.reset()
     assert len(tracks) == 0
+
+
+# --------------------------------------------------------------------------- real detector traits
+def hovering_sizes(seconds: float, fps: int, seed: int, noise: float, scale_every: int = 0) -> list[tuple[float, str]]:
+    """A target of constant true size 30 px, measured with relative noise ``noise``; with
+    ``scale_every`` > 0 the detector alternates every that many frames between a global one and a
+    local one whose boxes are 20 % larger (as the GL-DT schedule's two detectors are)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(int(seconds * fps)):
+        local = scale_every > 0 and (k // scale_every) % 2 == 1
+        size = 30.0 * (1.2 if local else 1.0) * (1.0 + rng.normal(0.0, noise))
+        out.append((size, "LD" if local else "GD"))
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_a_detector_change_is_not_taken_for_an_approach(seed: int) -> None:
+    fps = 30
+    sizes = hovering_sizes(40, fps, seed, noise=0.03, scale_every=45)
+    labelled, unlabelled = LoomingFilter(), LoomingFilter()
+    valid_labelled = valid_unlabelled = 0
+    for k, (size, source) in enumerate(sizes):
+        valid_labelled += labelled.update(k / fps, size, source).valid
+        valid_unlabelled += unlabelled.update(k / fps, size).valid
+    assert valid_labelled == 0
+    assert valid_unlabelled > 0  # the step alone reads as an approach: the label is what helps
+
+
+def test_boxes_noisier_than_the_model_raise_the_measurement_noise() -> None:
+    """Boxes jittering by 12 % (the model says 5 %) of a hovering target: never a valid TTC with
+    the adaptive noise, and more than once without it (the same filter, adaptation switched off)."""
+    fps = 30
+    assert 0.12 > 2 * LoomingConfig().size_noise_fraction
+    fixed_noise = LoomingConfig(noise_scale_from=1e9)
+    adaptive_valid = fixed_valid = 0
+    for seed in range(4):
+        adaptive, fixed = LoomingFilter(), LoomingFilter(fixed_noise)
+        for k, (size, _) in enumerate(hovering_sizes(60, fps, seed, noise=0.12)):
+            adaptive_valid += adaptive.update(k / fps, size).valid
+            fixed_valid += fixed.update(k / fps, size).valid
+    assert adaptive_valid == 0
+    assert fixed_valid > 20

@@ -150,7 +150,12 @@ def run_sequence(sequence: Any, detectors: tuple[Any, Any], config: Any) -> Stre
             stream.restart()
         tracker = cast(MultiStageTracker, system.tracker)  # built by the system: one of ours
         entries = stream.step(
-            tracker.tracks, float(frame.stamp), state.tracks, state.detections, state.class_probabilities
+            tracker.tracks,
+            float(frame.stamp),
+            state.tracks,
+            state.detections,
+            state.class_probabilities,
+            source=state.mode,
         )
         by_id = {stream.published_id(track): track for track in tracker.tracks}
         index = int(frame.index)

@@ -34,6 +34,15 @@ The filter
   first measurement), so a noisy small measurement does not weigh itself. The defaults are above the
   noise of the synthetic tests (``max(0.5 px, 3 %)``): a model that underestimates the detector's box
   jitter makes noise look like an approach, and ``valid`` can then turn on for a hovering target.
+* **Adaptive noise**: detectors differ in how much their boxes jitter (a global detector working
+  on a downscaled frame jitters by 10 % and more). The filter keeps a running mean (time constant
+  ``noise_window_s``) of its squared normalised innovations, which is 1 while the noise model holds,
+  and scales the measurement variance by it once it exceeds ``noise_scale_from``: noise that the model
+  underestimates would otherwise read as a significant approach.
+* **Detector changes**: the GL-DT system alternates a global and a local detector, whose boxes of
+  one object differ in scale. A measurement from another source than the last one (``source``)
+  first inflates the variance of ``q`` by ``(source_scale_std * q)^2``: the step is absorbed by the
+  level, and the rate keeps what the frames before had shown.
 * **Outliers** (a box that jumps for one frame) are down-weighted Huber-style: an innovation beyond
   ``outlier_gate`` standard deviations has its measurement variance inflated so that it counts as
   exactly ``outlier_gate`` sigma.
@@ -121,6 +130,20 @@ class LoomingConfig:
     outlier_gate: float = 4.0
     """Innovations beyond this many standard deviations are down-weighted (``inf`` disables)."""
 
+    noise_window_s: float = 1.0
+    """Time constant (s) of the running mean of squared normalised innovations that scales the
+    measurement noise up when a detector's boxes jitter more than the noise model says."""
+
+    noise_scale_from: float = 1.5
+    """That running mean scales the measurement noise only once it exceeds this (chance alone
+    keeps it within about 1 +- 0.3 over a one-second window)."""
+
+    source_scale_std: float = 0.3
+    """Standard deviation of the scale between two detectors' boxes of one object (as a fraction):
+    when a track's sizes start coming from another detector (GD and LD boxes of one drone differ
+    by 20 % and more), the inverse size's variance grows by this much, so the jump re-levels
+    ``q`` instead of reading as an approach or a retreat."""
+
     def __post_init__(self) -> None:
         positive = (
             "size_noise_floor_px",
@@ -131,6 +154,9 @@ class LoomingConfig:
             "initial_rate_std",
             "max_ttc_on_s",
             "outlier_gate",
+            "source_scale_std",
+            "noise_window_s",
+            "noise_scale_from",
         )
         for name in positive:
             value = getattr(self, name)
@@ -218,6 +244,9 @@ class LoomingFilter:
         self._qd = math.nan
         self._p00 = self._p01 = self._p11 = math.nan
         self._count = 0
+        self._source: object = None
+        self._noise_scale = 1.0
+        self._nis = 1.0
         self._valid = False
         self._nu = 0.0
         self._maneuver = False
@@ -256,8 +285,9 @@ class LoomingFilter:
         self._p01 = p01 + dt * p11 + qc * dt * dt / 2
         self._p11 = p11 + qc * dt
 
-    def update(self, t: float, size_px: float) -> LoomingEstimate:
-        """Advance to ``t`` and take the measured image size ``size_px`` (any linear size, e.g. ``sqrt(w h)``).
+    def update(self, t: float, size_px: float, source: object = None) -> LoomingEstimate:
+        """Advance to ``t`` and take the measured image size ``size_px`` (any linear size, e.g. ``sqrt(w h)``)
+        from the detector ``source`` (any label; ``None``: unknown, the same as the last).
 
         A size that is not a positive finite number is no measurement: the frame coasts.
         """
@@ -268,6 +298,7 @@ class LoomingFilter:
         z = 1.0 / size
         if self._t is None:
             sigma_q = self._size_sigma_q(size)
+            self._source = source
             self._t = self._t0 = t
             self._q, self._qd = z, 0.0
             self._p00 = sigma_q * sigma_q
@@ -277,14 +308,20 @@ class LoomingFilter:
             return self._settle(measured=True)
         dt = t - self._t
         self._predict(max(t, self._t))
+        if source is not None and self._source is not None and source != self._source:
+            self._p00 += (self.config.source_scale_std * self._q) ** 2
+        if source is not None:
+            self._source = source
         predicted_size = 1.0 / self._q if self._q > 0 else size
         sigma_q = self._size_sigma_q(predicted_size)
         innovation = z - self._q
-        s = self._p00 + sigma_q * sigma_q  # innovation variance
+        base_s = self._p00 + sigma_q * sigma_q
+        self._detect_maneuver(dt, innovation / math.sqrt(base_s))
+        self._adapt_noise(dt, innovation / math.sqrt(base_s))
+        s = self._p00 + self._noise_scale * sigma_q * sigma_q  # innovation variance
         gate = self.config.outlier_gate
         if innovation * innovation > gate * gate * s:  # Huber: count as exactly `gate` sigma
             s = innovation * innovation / (gate * gate)
-        self._detect_maneuver(dt, innovation / math.sqrt(s))
         k0, k1 = self._p00 / s, self._p01 / s
         self._q += k0 * innovation
         self._qd += k1 * innovation
@@ -294,6 +331,22 @@ class LoomingFilter:
         self._p11 = p11 - k1 * p01
         self._count += 1
         return self._settle(measured=True)
+
+    def _adapt_noise(self, dt: float, normalised_innovation: float) -> None:
+        """Update the running variance of normalised innovations and the noise scale (>= 1).
+
+        The spread around the running mean of the manoeuvre detector, not the raw second moment:
+        a bias (the rate still converging, a manoeuvre) is the model's business, not noise."""
+        if not dt > 0:
+            return
+        alpha = -math.expm1(-dt / self.config.noise_window_s)
+        # Clipped, so that one outlier (the Huber gate's business) cannot inflate the noise for long.
+        gate = self.config.outlier_gate
+        sample = min((normalised_innovation - self._nu) ** 2, gate * gate)
+        self._nis = (1 - alpha) * self._nis + alpha * sample
+        # A mean of chi-square(1) samples over a window scatters by +-0.3: only a mean clearly above 1
+        # says the model underestimates the noise.
+        self._noise_scale = self._nis if self._nis > self.config.noise_scale_from else 1.0
 
     def _detect_maneuver(self, dt: float, normalised_innovation: float) -> None:
         """Update the running mean of normalised innovations and the manoeuvre flag."""
@@ -360,9 +413,10 @@ class LoomingFilter:
 class LoomingTracks:
     """One :class:`LoomingFilter` per track id.
 
-    :meth:`update` takes a frame's time and ``(track_id, size_px or None)`` pairs (``None``: the track
-    is coasting, no measurement this frame) and returns each id's :class:`LoomingEstimate`. A track
-    id absent from a call is forgotten (a later one with the same id starts afresh).
+    :meth:`update` takes a frame's time, ``(track_id, size_px or None)`` pairs (``None``: the
+    track is coasting, no measurement this frame) and the frame's detector ``source``; it returns
+    each id's :class:`LoomingEstimate`. A track id absent from a call is forgotten (a later one
+    with the same id starts afresh).
     """
 
     def __init__(self, config: LoomingConfig | None = None) -> None:
@@ -376,13 +430,16 @@ class LoomingTracks:
         """Forget every track."""
         self._filters.clear()
 
-    def update(self, t: float, observations: Iterable[tuple[int, float | None]]) -> dict[int, LoomingEstimate]:
-        """Advance every listed track to ``t``; measured sizes update, ``None`` coasts."""
+    def update(
+        self, t: float, observations: Iterable[tuple[int, float | None]], source: object = None
+    ) -> dict[int, LoomingEstimate]:
+        """Advance every listed track to ``t``; measured sizes (from detector ``source``) update,
+        ``None`` coasts."""
         filters: dict[int, LoomingFilter] = {}
         estimates: dict[int, LoomingEstimate] = {}
         for track_id, size in observations:
             looming = self._filters.get(track_id) or filters.get(track_id) or LoomingFilter(self.config)
             filters[track_id] = looming
-            estimates[track_id] = looming.coast(t) if size is None else looming.update(t, size)
+            estimates[track_id] = looming.coast(t) if size is None else looming.update(t, size, source)
         self._filters = filters
         return estimates

@@ -104,17 +104,20 @@ class PlannerStream:
         detections: np.ndarray,
         probabilities: np.ndarray,
         camera: CameraModel | None = None,
+        source: object = None,
     ) -> list[PlannerTrack]:
         """This frame's entries, oldest track first, then the ids removed since the last frame.
 
         ``tracks`` are the tracker's live tracks after its update at ``t``, ``matched_rows`` its
         output ``(M, >=5)`` ``[x1, y1, x2, y2, id, ...]``, ``detections`` ``(N, >=4)`` and
-        ``probabilities`` ``(N, 3)`` the frame's detections and their class probabilities.
+        ``probabilities`` ``(N, 3)`` the frame's detections and their class probabilities;
+        ``source`` names the detector that produced them (the frame's mode), whose boxes' scale
+        the time to collision must not take for a change of range (:mod:`.looming`).
         """
         self.class_evidence.update(matched_rows, detections, probabilities)
         live = [tr for tr in tracks if tr.state in _STREAM_STATE]
         sizes = [(self.published_id(tr), _measured_size(tr)) for tr in live]
-        estimates = self.looming.update(t, sizes)
+        estimates = self.looming.update(t, sizes, source)
         entries = [
             self._entry(tr, _STREAM_STATE[tr.state], estimates[pid], camera) for tr, (pid, _) in zip(live, sizes)
         ]

@@ -138,7 +138,13 @@ class TrackerNode(GldtNode):
             output = self.tracker.update(detections, t)
         rows = np.asarray(output, dtype=np.float64).reshape(-1, 6)
         entries = self.stream.step(
-            self.tracker.tracks, t, rows, detections, detection_array_class_probabilities(message), self.camera
+            self.tracker.tracks,
+            t,
+            rows,
+            detections,
+            detection_array_class_probabilities(message),
+            self.camera,
+            source=int(message.mode),
         )
         tracks = [planner_track_to_msg(entry) for entry in entries]
         array = TrackArray(header=message.header, frame_index=message.frame_index, tracks=tracks)
