@@ -65,3 +65,40 @@ def test_false_positives_and_distractors_are_added() -> None:
     extra = len(dets) - len(gt)
     # About 0.5 clutter + 0.5 bird detections per frame over 300 frames.
     assert 200 < extra < 400
+
+
+def test_column_one_says_where_each_detection_came_from() -> None:
+    gt = simple_multi_target_gt(4, 200, targets=3)
+    bird = gt[gt[:, 1] == 1].copy()
+    bird[:, 1] = 1001
+    bird[:, 7] = 2
+    bird[:, 3] += 200
+    both = np.vstack([gt, bird])
+    params = StreamParams(fp_rate=0.5, distractor_rate=0.5, clutter_tracks_rate=0.02)
+    dets = detections_from_gt(both, 7, (1920, 1080), params)
+    sources = set(np.unique(dets[:, 1]).astype(int))
+    assert {1, 2, 3, -1, -2} == sources
+    index = {(int(r[0]), int(r[1])): r for r in both}
+    for row in dets:
+        source = int(row[1])
+        if source == -1:
+            continue
+        truth = index[(int(row[0]), 1001 if source == -2 else source)]
+        centre = row[2:4] + row[4:6] / 2
+        true_centre = truth[2:4] + truth[4:6] / 2
+        assert np.hypot(*(centre - true_centre)) < 1.0 * max(truth[4], truth[5]) + 3  # jitter, not another object
+    # Independent and persistent clutter both say -1.
+    assert (dets[:, 1] == -1).sum() > 100
+
+
+def test_the_new_failure_modes_leave_the_default_stream_unchanged() -> None:
+    gt = simple_multi_target_gt(5, 150, targets=2)
+    plain = detections_from_gt(gt, 3, (1920, 1080))
+    drifting = detections_from_gt(gt, 3, (1920, 1080), StreamParams(clutter_tracks_rate=0.05))
+    # The persistent clutter draws from its own generator: every other row is the same.
+    assert len(drifting) > len(plain)
+    kept = np.array([any(np.array_equal(r, p) for p in drifting) for r in plain])
+    assert kept.all()
+    beta = detections_from_gt(gt, 3, (1920, 1080), StreamParams(score_beta=(2.0, 5.0), low_score_rate=0.0))
+    true = beta[beta[:, 1] > 0, 6]
+    assert 0.15 < true.mean() < 0.45 and (true < 0.15).any()

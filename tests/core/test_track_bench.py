@@ -1,24 +1,141 @@
-"""``gldt bench tracking --quick`` runs end to end and reports every tracker (slow: a benchmark)."""
+"""``gldt bench tracking``: profiles, the worst-profile headline, targets, and a quick run end to end."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from gldt_core.bench import tracking
 from gldt_core.cli import main
+from gldt_core.eval.streams import PROFILES, StreamSequence
+
+
+def test_profiles_option_selects_in_order_and_refuses_unknown_names() -> None:
+    everything = tracking.select_profiles(None)
+    assert everything == [p.name for p in PROFILES] + [tracking.REAL_PROFILE]
+    assert tracking.select_profiles(f"{tracking.REAL_PROFILE}, crossing") == ["crossing", tracking.REAL_PROFILE]
+    with pytest.raises(ValueError, match="known"):
+        tracking.select_profiles("crossing,bogus")
+    with pytest.raises(ValueError):
+        tracking.select_profiles(" , ")
+
+
+@pytest.mark.parametrize("fps", [15.0, 60.0])
+def test_trackers_get_the_time_of_the_sequences_own_frame_rate(fps: float) -> None:
+    seen: dict = {"t": [], "made": None}
+
+    class Recorder:
+        tracks: list = [1]  # never "empty": every frame is an update
+
+        def update(self, dets: np.ndarray, t: float) -> np.ndarray:
+            seen["t"].append(t)
+            return np.zeros((0, 6))
+
+    def make(size: tuple[int, int], rate: float) -> Recorder:
+        seen["made"] = (size, rate)
+        return Recorder()
+
+    dets = np.array([[1, -1, 10, 10, 5, 5, 0.9, -1, -1, -1]], dtype=float)
+    sequence = StreamSequence("s", np.zeros((0, 10)), dets, fps, (640, 480), 9)
+    tracking._track(make, sequence)
+    assert seen["made"] == ((640, 480), fps)
+    np.testing.assert_allclose(seen["t"], np.arange(9) / fps)
+
+
+def _metrics(hota: float, idf1: float, idsw: int) -> dict:
+    return {"HOTA": hota, "IDF1": idf1, "IDSW": idsw}
+
+
+def test_the_headline_is_each_trackers_worst_profile_not_its_mean() -> None:
+    results = {
+        "a": {"JPTrack JCMA+PMR": _metrics(0.9, 0.9, 1), "ByteTrack (ours)": _metrics(0.5, 0.6, 10)},
+        "b": {"JPTrack JCMA+PMR": _metrics(0.3, 0.8, 2), "ByteTrack (ours)": _metrics(0.6, 0.4, 12)},
+        "c": {"JPTrack JCMA+PMR": _metrics(0.5, 0.5, 3), "ByteTrack (ours)": _metrics(0.7, 0.7, 14)},
+    }
+    worst = tracking.worst_profiles(results, {"a": "tuning", "b": "tuning", "c": "held-out"})
+    assert worst["JPTrack JCMA+PMR"]["all_HOTA"] == {"profile": "b", "value": 0.3}
+    assert worst["JPTrack JCMA+PMR"]["all_IDF1"] == {"profile": "c", "value": 0.5}
+    assert worst["ByteTrack (ours)"]["all_IDF1"] == {"profile": "b", "value": 0.4}
+    assert worst["JPTrack JCMA+PMR"]["held_out_HOTA"] == {"profile": "c", "value": 0.5}
+
+
+def test_targets_are_marked_per_profile_and_on_the_worst_profile() -> None:
+    diou, ours, jp = tracking.DIOU_PEER, tracking.OURS_BYTETRACK, tracking.JPTRACK_FULL
+    results = {
+        "easy": {jp: _metrics(0.60, 0.70, 4), diou: _metrics(0.55, 0.65, 5), ours: _metrics(0.4, 0.5, 10)},
+        "hard": {jp: _metrics(0.30, 0.40, 9), diou: _metrics(0.35, 0.38, 8), ours: _metrics(0.2, 0.35, 12)},
+    }
+    worst = tracking.worst_profiles(results, {"easy": "tuning", "hard": "held-out"})
+    speed = {
+        3: {jp: {"mean_ms": 0.2}, ours: {"mean_ms": 0.1}},
+        50: {jp: {"mean_ms": 2.0}, ours: {"mean_ms": 1.0}},
+    }
+    lines = tracking.target_lines(results, worst, speed)
+    easy = [line for line in lines if line.startswith("[easy]")]
+    hard = [line for line in lines if line.startswith("[hard]")]
+    assert "MISSED" not in easy[0] and easy[0].count("OK") == 3  # HOTA, IDF1 above DIoU; IDSW no higher
+    assert "IDSW 4/10 = 0.40 (<= 0.50: OK)" in easy[1] and "+20.00 points (>= +10: OK)" in easy[1]
+    assert "HOTA 30.00 vs 35.00 (MISSED)" in hard[0] and "IDF1 40.00 vs 38.00 (OK)" in hard[0]
+    assert "IDSW 9 vs 8 (MISSED)" in hard[0]
+    assert "0.75 (<= 0.50: MISSED)" in hard[1] and "+5.00 points (>= +10: MISSED)" in hard[1]
+    worst_lines = [line for line in lines if line.startswith("[worst profile]")]
+    assert "HOTA: JPTrack 30.00 (hard) vs ByteTrack+DIoU 35.00 (hard) (MISSED)" in worst_lines[0]
+    assert "IDF1: JPTrack 40.00 (hard) vs ByteTrack+DIoU 38.00 (hard) (OK)" in worst_lines[1]
+    assert any("[speed 3 targets]" in line and "2.00x" in line for line in lines)
+
+
+def test_a_one_profile_run_reports_it_with_its_role(capsys) -> None:
+    args = ["bench", "tracking", "--profiles", "occlusion-15hz", "--sequences", "1", "--seconds", "2"]
+    assert main(args + ["--no-peers", "--speed-frames", "4"]) == 0
+    text = capsys.readouterr().out
+    assert "occlusion-15hz [HELD OUT]" in text and "30 frames at 15 Hz" in text
+    assert "[ours" not in text and "worst profile per tracker" in text
+    assert "[occlusion-15hz] vs our ByteTrack" in text and "not run (boxmot peers missing or skipped)" in text
 
 
 @pytest.mark.slow
-def test_quick_benchmark_reports_all_our_trackers(tmp_path: Path, capsys) -> None:
+def test_quick_benchmark_reports_every_profile_tracker_and_the_worst_profile(
+    tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("GLDT_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "bench.json"
-    assert main(["bench", "tracking", "--quick", "--no-peers", "--json", str(out)]) == 0
+    assert main(["bench", "tracking", "--quick", "--json", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "IDSW" in text and "update time per frame" in text and "peers skipped" in text
     payload = json.loads(out.read_text())
-    for name in ("ByteTrack (ours)", "JPTrack JCMA", "JPTrack JCMA+PMR"):
-        assert name in payload["accuracy"]
-        assert payload["speed"]["3"][name]["mean_ms"] > 0
-        assert payload["speed"]["50"][name]["p99_ms"] >= payload["speed"]["50"][name]["mean_ms"] * 0.5
-    assert any("IDSW JPTrack/ByteTrack" in line for line in payload["targets"])
+    ours = ("ByteTrack (ours)", "JPTrack JCMA", "JPTrack JCMA+PMR")
+    has_boxmot = importlib.util.find_spec("boxmot") is not None
+    peers = ("boxmot ByteTrack (IoU)", "boxmot ByteTrack (DIoU)", "boxmot OC-SORT", "boxmot BoT-SORT (no ReID)")
+    trackers = ours + (peers if has_boxmot else ())
+    real_ran = tracking.REAL_PROFILE in payload["profiles"]
+    for name in tracking.select_profiles(None):
+        if name == tracking.REAL_PROFILE and not real_ran:
+            assert f"{name}: SKIPPED" in text
+            continue
+        role = "TUNING" if payload["profiles"][name]["role"] == "tuning" else "HELD OUT"
+        assert f"[{name} [{role}]" in text  # its table
+        assert f"[{name}] vs our ByteTrack" in text  # its targets
+        for tracker in trackers:
+            metrics = payload["accuracy"][name][tracker]
+            assert 0.0 <= metrics["HOTA"] <= 1.0 and metrics["IDSW"] >= 0
+    if real_ran:
+        assert len(list((tmp_path / "cache" / "detector_streams").glob("*/*.txt"))) == 1
+    assert "worst profile per tracker" in text
+    for tracker in trackers:
+        worst = payload["worst"][tracker]["all_HOTA"]
+        assert worst["value"] == min(payload["accuracy"][p][tracker]["HOTA"] for p in payload["accuracy"])
+    if has_boxmot:
+        assert any(line.startswith("[worst profile] HOTA: JPTrack") for line in payload["targets"])
+        assert "BoT-SORT without ReID" in text
+    if importlib.util.find_spec("gldt_core.eval.id_events") is not None:
+        assert "identity switches by event" in text
+        events = payload["id_events"][PROFILES[0].name]["JPTrack JCMA+PMR"]
+        assert sum(events.values()) == payload["accuracy"][PROFILES[0].name]["JPTrack JCMA+PMR"]["IDSW"]
+    else:
+        assert "gldt_core.eval.id_events is not available" in text
+    for size in ("3", "50"):
+        for tracker in trackers:
+            assert payload["speed"][size][tracker]["mean_ms"] > 0

@@ -1,18 +1,40 @@
-"""``gldt bench tracking``: the paper's Table III ablation plus tracker speed, against peers.
+"""``gldt bench tracking``: JPTrack against our ByteTrack and boxmot's trackers, on stream profiles
+that one noise model cannot overfit, plus tracker speed.
 
-Builds detection streams from ground truth (:mod:`gldt_core.eval.streams`: misses in bursts,
-box jitter, low-score detections, clutter and detected birds) for
+Every tracker sees the same detection streams, from several independent **profiles**
+(:data:`gldt_core.eval.streams.PROFILES`; ``--profiles a,b`` picks some):
 
-* synthetic 1080p scenes of :func:`gldt_core.sim.scene_ground_truth` (3 drones plus birds), or,
-  when that module is missing, the plain generator ``simple_multi_target_gt`` (said in the output);
-* the real drone ground truth ``V_DRONE_*.txt`` of the Halmstad clips (skipped with a reason when
-  the folder is absent),
+* ``ours`` (TUNING): our own stream model (:class:`gldt_core.eval.streams.StreamParams` defaults:
+  burst misses, two score bands, jitter, i.i.d. clutter, detected birds) on the synthetic
+  scenes of :func:`gldt_core.sim.scene_ground_truth` (3 drones + birds, 1080p, 30 Hz);
+* ``crossing`` (TUNING): 2-5 targets that cross and occlude each other
+  (:func:`gldt_core.eval.streams.crossing_multi_target_gt`), our model with more low scores;
+* ``occlusion-15hz`` (HELD OUT): 15 Hz, 720p, 1-4 s occlusion bursts, Beta(2,3) scores, strong
+  jitter and clutter;
+* ``drifting-clutter-60hz`` (HELD OUT): 60 Hz, false objects that persist 2-10 s and move like
+  targets, Beta(5,2) scores;
+* ``ego-motion-25hz`` (HELD OUT): 25 Hz, a camera pan/roll random walk applied to every box (gt
+  and detections alike), near-uniform Beta(1.2,1.2) scores, drifting clutter;
+* ``real-detector`` (HELD OUT): what the shipped global detector (AM-YOLO with its second stage)
+  reports on every frame at score >= 0.05 on the V_DRONE clips of both Halmstad validation splits
+  (:mod:`gldt_core.eval.detector_streams`; cached on disk per model, ``--detector-clips`` and
+  ``--detector-frames`` bound the work; skipped with a reason when the clips are absent).
 
-then runs, on the same streams in the same process: our ByteTrack, JPTrack (JCMA only), JPTrack
-(JCMA + PMR) and, when boxmot is installed (benchmark-only dependency), boxmot's ByteTrack with
-IoU association, with DIoU association, and OC-SORT. It prints IDSW, IDF1, MOTA, MOTP, HOTA (the
-Table III columns) plus DetA/AssA per stream group, the issue's target ratios, and per-frame update
-time (mean, p99) at 3 and at 50 targets. BLAS is limited to one thread for the whole run.
+TUNING profiles are where tracker defaults may be tuned; HELD OUT ones never are. Trackers get
+``t = (frame - 1) / fps`` at each profile's own frame rate. In the same process and on the same
+streams run our ByteTrack, JPTrack (JCMA only), JPTrack (JCMA + PMR) and, when boxmot is installed
+(benchmark-only dependency, ``make bench-peers``), boxmot's ByteTrack with IoU and with DIoU
+association, OC-SORT and BoT-SORT without re-identification (no appearance model, no weights; its
+camera-motion compensation is off too, as it needs images). Peers keep their defaults except that
+their frame-counted lifetimes follow the stream's frame rate.
+
+The report gives, per profile, HOTA, IDF1, MOTA, IDSW, DetA, AssA, FP, FN (and MOTP, Frag); per
+tracker its WORST profile (the headline, not a mean); the issue's targets per profile (JPTrack
+JCMA+PMR above ByteTrack+DIoU in HOTA and IDF1 with no more IDSW; against our ByteTrack IDSW
+<= 0.5x and IDF1 >= +10 points), each OK or MISSED; the identity switches of JPTrack JCMA+PMR
+and ByteTrack+DIoU by event (:mod:`gldt_core.eval.id_events`, when present); and the per-frame
+update time (mean, p99) at 3 and 50 targets on one core. BLAS is limited to one thread for the
+whole run. ``--quick`` is a smoke run (1 short sequence per profile, 1 real clip of 60 frames).
 """
 
 from __future__ import annotations
@@ -23,27 +45,60 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     import numpy as np
 
+    from gldt_core.eval.streams import StreamSequence
+
 DEFAULT_HALMSTAD = None  # resolved by gldt_core.paths.halmstad_root() when used
+#: The profile of real detector output (held out), beside the synthetic ones.
+REAL_PROFILE = "real-detector"
+OURS_BYTETRACK, JPTRACK_FULL, DIOU_PEER = "ByteTrack (ours)", "JPTrack JCMA+PMR", "boxmot ByteTrack (DIoU)"
+#: Trackers whose identity switches are broken down by event.
+EVENT_TRACKERS = (JPTRACK_FULL, DIOU_PEER)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     """Add ``gldt bench tracking``."""
     parser = subparsers.add_parser(
         "tracking",
-        help="JPTrack vs ByteTrack vs boxmot peers: Table III metrics and update time",
+        help="JPTrack vs ByteTrack vs boxmot peers on tuning and held-out stream profiles: metrics and update time",
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--profiles", help="comma-separated profiles to run (default: all)")
+    parser.add_argument("--sequences", type=int, default=6, help="sequences per synthetic profile (default 6)")
+    parser.add_argument("--seconds", type=float, default=20.0, help="duration of each synthetic sequence (default 20)")
     parser.add_argument("--halmstad", default=DEFAULT_HALMSTAD, help="Halmstad visible dataset folder")
-    parser.add_argument("--real-clips", type=int, default=0, help="number of V_DRONE clips (0 = all)")
-    parser.add_argument("--sim-scenes", type=int, default=8, help="number of synthetic scenes")
-    parser.add_argument("--sim-frames", type=int, default=600, help="frames per synthetic scene")
+    parser.add_argument(
+        "--detector-clips", type=int, default=0, help="Halmstad validation drone clips of real-detector (0 = all)"
+    )
+    parser.add_argument(
+        "--detector-frames", type=int, default=None, help="frames per real-detector clip (default: whole clips)"
+    )
     parser.add_argument("--speed-frames", type=int, default=300, help="frames of each speed stream")
-    parser.add_argument("--seed", type=int, default=0, help="base seed of scenes and detection noise")
+    parser.add_argument("--seed", type=int, default=0, help="base seed of the synthetic streams")
     parser.add_argument("--no-peers", action="store_true", help="skip the boxmot peers")
-    parser.add_argument("--quick", action="store_true", help="tiny run (smoke test): 1 scene, 2 clips")
+    parser.add_argument(
+        "--quick", action="store_true", help="smoke run: 1 sequence of 4 s per profile, 1 real clip of 60 frames"
+    )
     parser.add_argument("--json", help="also write all numbers to this JSON file")
     parser.set_defaults(func=run_bench)
+
+
+def _profile_names() -> list[str]:
+    from gldt_core.eval.streams import PROFILES
+
+    return [p.name for p in PROFILES] + [REAL_PROFILE]
+
+
+def select_profiles(option: str | None) -> list[str]:
+    """The profiles named by ``--profiles`` (all when None), in the benchmark's order."""
+    known = _profile_names()
+    if option is None:
+        return known
+    asked = [name.strip() for name in option.split(",") if name.strip()]
+    unknown = [name for name in asked if name not in known]
+    if unknown or not asked:
+        raise ValueError(f"--profiles: unknown {', '.join(unknown) or '(none given)'} (known: {', '.join(known)})")
+    return [name for name in known if name in asked]
 
 
 # --------------------------------------------------------------------------------------------
@@ -54,7 +109,7 @@ def _sim_source():
     try:
         sim = importlib.import_module("gldt_core.sim")
         generator = sim.scene_ground_truth
-        return generator, "gldt_core.sim.scene_ground_truth (3 drones + birds, 1920x1080)"
+        return generator, "gldt_core.sim.scene_ground_truth (1920x1080)"
     except (ImportError, AttributeError):
         from gldt_core.eval.streams import simple_multi_target_gt
 
@@ -81,11 +136,18 @@ class BoxmotPeer:
         return np.column_stack([out[:, :4], out[:, 4] + 1, out[:, 5]]).astype(np.float64)
 
 
+def _frames(fps: float, at_30: int) -> int:
+    """A frame count that lasts as long at ``fps`` as ``at_30`` frames do at 30 Hz."""
+    return max(1, round(at_30 * fps / 30.0))
+
+
 def _peer_factories(no_peers: bool) -> tuple[dict, str]:
+    """``{name: make(size, fps)}`` of the boxmot peers and a note on what runs."""
     if no_peers:
         return {}, "boxmot peers skipped (--no-peers)"
     try:
         import boxmot  # noqa: F401
+        from boxmot import BotSort as BoxBotSort
         from boxmot import ByteTrack as BoxByteTrack
         from boxmot import OcSort as BoxOcSort
     except Exception as error:  # any import failure means: peer missing, bench goes on
@@ -94,83 +156,181 @@ def _peer_factories(no_peers: bool) -> tuple[dict, str]:
 
     logging.getLogger("boxmot").setLevel(logging.WARNING)  # one INFO block per tracker otherwise
     version = getattr(boxmot, "__version__", "?")
+
+    def botsort(size: tuple[int, int], fps: float) -> BoxmotPeer:
+        # No appearance model (use_embeddings=False: no ReID weights loaded or downloaded) and no
+        # camera-motion compensation (use_cmc=False: it registers images, a stream has none).
+        return BoxmotPeer(BoxBotSort(use_embeddings=False, use_cmc=False, frame_rate=round(fps)), size)
+
     factories = {
-        "boxmot ByteTrack (IoU)": lambda size: BoxmotPeer(BoxByteTrack(), size),
-        "boxmot ByteTrack (DIoU)": lambda size: BoxmotPeer(BoxByteTrack(asso_func="diou"), size),
-        "boxmot OC-SORT": lambda size: BoxmotPeer(BoxOcSort(), size),
+        "boxmot ByteTrack (IoU)": lambda size, fps: BoxmotPeer(BoxByteTrack(frame_rate=round(fps)), size),
+        DIOU_PEER: lambda size, fps: BoxmotPeer(BoxByteTrack(asso_func="diou", frame_rate=round(fps)), size),
+        "boxmot OC-SORT": lambda size, fps: BoxmotPeer(BoxOcSort(max_age=_frames(fps, 30)), size),
+        "boxmot BoT-SORT (no ReID)": botsort,
     }
-    return factories, f"boxmot {version} peers with their default parameters"
+    return factories, (
+        f"boxmot {version} peers with their default parameters (lifetimes in frames follow the stream's rate); "
+        "BoT-SORT without ReID (use_embeddings=False, no weights) and without camera-motion compensation "
+        "(use_cmc=False: it needs images)"
+    )
 
 
 def _our_factories() -> dict:
     from gldt_core.track import ByteTrack, ByteTrackConfig, JPTrack, JPTrackConfig
 
     return {
-        "ByteTrack (ours)": lambda size: ByteTrack(ByteTrackConfig(image_size=size)),
-        "JPTrack JCMA": lambda size: JPTrack(JPTrackConfig(use_pmr=False, image_size=size)),
-        "JPTrack JCMA+PMR": lambda size: JPTrack(JPTrackConfig(image_size=size)),
+        OURS_BYTETRACK: lambda size, fps: ByteTrack(ByteTrackConfig(image_size=size)),
+        "JPTrack JCMA": lambda size, fps: JPTrack(JPTrackConfig(use_pmr=False, image_size=size)),
+        JPTRACK_FULL: lambda size, fps: JPTrack(JPTrackConfig(image_size=size)),
     }
 
 
-def _load_sequences(args: argparse.Namespace) -> tuple[dict, list[str]]:
-    """``{group: {name: (gt, image_size)}}`` and notes about what was used or skipped."""
+class ProfileRun:
+    """One profile's sequences and what the report says about it."""
+
+    def __init__(self, name: str, role: str, description: str, parameters: dict, sequences: list) -> None:
+        self.name = name
+        self.role = role
+        self.description = description
+        self.parameters = parameters
+        self.sequences: list[StreamSequence] = sequences
+
+    def summary(self) -> str:
+        import numpy as np
+
+        seqs = self.sequences
+        frames = sum(s.frames for s in seqs)
+        rates = sorted({f"{s.fps:g}" for s in seqs})
+        targets = [len(np.unique(s.gt[s.gt[:, 7] == 1, 1])) for s in seqs]
+        span = (
+            f"{min(targets)}-{max(targets)}"
+            if targets and min(targets) != max(targets)
+            else str(max(targets, default=0))
+        )
+        role = "TUNING" if self.role == "tuning" else "HELD OUT"
+        return (
+            f"{self.name} [{role}]: {self.description}; {len(seqs)} sequence(s), {frames} frames at "
+            f"{'/'.join(rates)} Hz, targets per sequence: {span}"
+        )
+
+
+def build_profiles(args: argparse.Namespace, names: list[str]) -> tuple[dict[str, ProfileRun], list[str]]:
+    """The selected profiles' sequences (``{name: ProfileRun}``) and notes on what was skipped."""
+    import dataclasses
+
+    from gldt_core.eval.streams import profile_by_name, profile_sequences
+
+    runs: dict[str, ProfileRun] = {}
+    notes: list[str] = []
+    for name in names:
+        if name == REAL_PROFILE:
+            run, note = _real_profile(args)
+            notes.append(note)
+            if run is not None:
+                runs[name] = run
+            continue
+        profile = profile_by_name(name)
+        sequences = profile_sequences(profile, args.seed, args.sequences, args.seconds)
+        parameters = dataclasses.asdict(profile)
+        if profile.generator == "scene":
+            parameters["generator"] = _sim_source()[1]
+        runs[name] = ProfileRun(name, profile.role, profile.description, parameters, sequences)
+    return runs, notes
+
+
+def _real_profile(args: argparse.Namespace) -> tuple[ProfileRun | None, str]:
     from pathlib import Path
 
-    from gldt_core.io.mot import read_mot
-
-    notes: list[str] = []
-    groups: dict[str, dict] = {"synthetic": {}, "real": {}}
-    generator, description = _sim_source()
-    notes.append(f"synthetic streams: {args.sim_scenes} scenes x {args.sim_frames} frames from {description}")
-    for k in range(args.sim_scenes):
-        gt = generator(args.seed + 1000 + k, args.sim_frames)
-        groups["synthetic"][f"sim{k:02d}"] = (gt, (1920, 1080))
+    from gldt_core.eval.detector_streams import (
+        DEFAULT_SCORE_THRESHOLD,
+        halmstad_detector_sequences,
+        halmstad_drone_clips,
+        shipped_detector_cache,
+    )
+    from gldt_core.eval.streams import HELD_OUT
     from gldt_core.paths import halmstad_root
 
-    gt_dir = Path(args.halmstad or halmstad_root()) / "gt"
-    files = sorted(gt_dir.glob("V_DRONE_*.txt")) if gt_dir.is_dir() else []
-    if not files:
-        notes.append(f"real streams SKIPPED: no V_DRONE_*.txt under {gt_dir}")
-    else:
-        if args.real_clips > 0:
-            files = files[: args.real_clips]
-        notes.append(f"real streams: {len(files)} Halmstad V_DRONE clips (640x512, 30 fps)")
-        for path in files:
-            groups["real"][path.stem] = (read_mot(path), (640, 512))
-    return {g: seqs for g, seqs in groups.items() if seqs}, notes
+    root = Path(args.halmstad or halmstad_root())
+    if not (root / "videos").is_dir() or not (root / "gt").is_dir():
+        return None, f"{REAL_PROFILE}: SKIPPED, no Halmstad videos/ and gt/ under {root}"
+    cache = shipped_detector_cache(score_threshold=DEFAULT_SCORE_THRESHOLD)
+    clips = halmstad_drone_clips(root, args.detector_clips)
+    if not clips:
+        return None, f"{REAL_PROFILE}: SKIPPED, no V_DRONE validation clips under {root}"
+    sequences = halmstad_detector_sequences(
+        root, cache, args.detector_clips, args.detector_frames, log=lambda line: print(f"  {line}", flush=True)
+    )
+    splits = sorted({split for split, _ in clips})
+    parameters = {
+        "detector": cache.description,
+        "cache": str(cache.directory),
+        "clips": [f"{split}/{name}" for split, name in clips],
+        "frames_per_clip": args.detector_frames,
+        "score_threshold": DEFAULT_SCORE_THRESHOLD,
+    }
+    description = (
+        f"{cache.description} on every frame of Halmstad V_DRONE validation clips ({', '.join(splits)}, 640x512)"
+    )
+    note = f"{REAL_PROFILE}: {len(sequences)} clips, detector streams cached in {cache.directory}"
+    return ProfileRun(REAL_PROFILE, HELD_OUT, description, parameters, sequences), note
 
 
-def _run_accuracy(groups: dict, factories: dict, seed: int) -> dict:
+def _track(make: Any, sequence: StreamSequence, timings: list[float] | None = None) -> np.ndarray:
+    """One tracker over one sequence, at the sequence's own frame rate."""
+    from gldt_core.track.runner import track_detection_rows
+
+    tracker = make(sequence.size, sequence.fps)
+    return track_detection_rows(tracker, sequence.dets, sequence.fps, num_frames=sequence.frames, timings=timings)
+
+
+def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, dict]:
+    """``results[profile][tracker]`` metrics and ``kept[profile][tracker]`` = [(gt, pred, dets, fps)]
+    of :data:`EVENT_TRACKERS`."""
     import numpy as np
 
     from gldt_core.eval import evaluate_many
-    from gldt_core.eval.streams import detections_from_gt
-    from gldt_core.track.runner import track_detection_rows
 
-    streams = {}
-    for g_index, seqs in enumerate(groups.values()):
-        for s_index, (name, (gt, size)) in enumerate(seqs.items()):
-            streams[name] = detections_from_gt(gt, seed + 7919 * g_index + s_index, size)
     results: dict = {}
-    for tracker_name, make in factories.items():
-        results[tracker_name] = {}
-        everything = {}
-        for group, seqs in groups.items():
-            pairs = {}
+    kept: dict = {}
+    for profile, run in runs.items():
+        results[profile], kept[profile] = {}, {}
+        for tracker_name, make in factories.items():
             timings: list[float] = []
-            for name, (gt, size) in seqs.items():
-                pred = track_detection_rows(
-                    make(size), streams[name], 30.0, num_frames=int(gt[:, 0].max()), timings=timings
-                )
-                pairs[name] = (gt, pred)
+            pairs = {}
+            for sequence in run.sequences:
+                pred = _track(make, sequence, timings)
+                pairs[sequence.name] = (sequence.gt, pred)
+                if tracker_name in EVENT_TRACKERS:
+                    kept[profile].setdefault(tracker_name, []).append((sequence.gt, pred, sequence.dets, sequence.fps))
             metrics = evaluate_many(pairs)["combined"]
-            metrics["t_mean_ms"] = 1000 * float(np.mean(timings))
-            results[tracker_name][group] = metrics
-            everything.update(pairs)
-        if len(groups) > 1:
-            results[tracker_name]["all"] = evaluate_many(everything)["combined"]
-        print(f"  ran {tracker_name}", flush=True)
-    return results
+            metrics["t_mean_ms"] = 1000 * float(np.mean(timings)) if timings else 0.0
+            results[profile][tracker_name] = metrics
+        print(f"  ran {profile}", flush=True)
+    return results, kept
+
+
+def _id_switch_breakdown(kept: dict) -> tuple[dict | None, str]:
+    """Identity switches by event category, per profile and tracker of :data:`EVENT_TRACKERS`,
+    from :func:`gldt_core.eval.id_events.classify_id_switches` (summed over the sequences; it
+    returns a report with per-category ``counts``, or such a mapping itself). Returns None and
+    the reason when that module is not there."""
+    import importlib
+    import importlib.util
+
+    if importlib.util.find_spec("gldt_core.eval.id_events") is None:
+        return None, "identity-switch breakdown: SKIPPED, gldt_core.eval.id_events is not available"
+    module = importlib.import_module("gldt_core.eval.id_events")
+    events: dict = {}
+    for profile, per_tracker in kept.items():
+        events[profile] = {}
+        for tracker, runs in per_tracker.items():
+            total: dict[str, int] = dict.fromkeys(getattr(module, "CATEGORIES", ()), 0)
+            for gt, pred, dets, fps in runs:
+                result = module.classify_id_switches(gt, pred, dets, fps)
+                for category, count in dict(getattr(result, "counts", result)).items():
+                    total[category] = total.get(category, 0) + int(count)
+            events[profile][tracker] = total
+    return events, "identity switches by event: gldt_core.eval.id_events.classify_id_switches"
 
 
 #: Timed runs per tracker and stream; the fastest run's mean and p99 are reported. On a shared
@@ -195,13 +355,120 @@ def _run_speed(factories: dict, frames: int, seed: int) -> tuple[dict, str]:
             best = None
             for _ in range(SPEED_REPEATS):
                 timings: list[float] = []
-                track_detection_rows(make((1920, 1080)), dets, 30.0, num_frames=frames, timings=timings)
+                track_detection_rows(make((1920, 1080), 30.0), dets, 30.0, num_frames=frames, timings=timings)
                 arr = np.asarray(timings) * 1000.0
                 run = (float(arr.mean()), float(np.percentile(arr, 99)))
                 best = run if best is None or run[0] < best[0] else best
             assert best is not None, "SPEED_REPEATS >= 1"
             speed[targets][name] = {"mean_ms": best[0], "p99_ms": best[1]}
     return speed, description
+
+
+def _print_accuracy(results: dict, runs: dict[str, ProfileRun]) -> None:
+    columns = ("HOTA", "IDF1", "MOTA", "IDSW", "DetA", "AssA", "FP", "FN", "MOTP", "Frag")
+    counts = ("IDSW", "FP", "FN", "Frag")
+    for profile, per_tracker in results.items():
+        print(f"\n[{runs[profile].summary()}]")
+        head = f"{'tracker':<28}" + "".join(f"{c:>8}" for c in columns)
+        print(head)
+        print("-" * len(head))
+        for tracker, m in per_tracker.items():
+            cells = "".join(f"{int(m[c]):8d}" if c in counts else f"{100 * m[c]:8.2f}" for c in columns)
+            print(f"{tracker:<28}{cells}")
+
+
+def worst_profiles(results: dict, roles: dict[str, str]) -> dict:
+    """Per tracker: its lowest HOTA and IDF1 over all profiles and over the held-out ones, with
+    the profile each comes from (the headline of the benchmark)."""
+    worst: dict = {}
+    trackers = next(iter(results.values())).keys() if results else []
+    for tracker in trackers:
+        entry: dict = {}
+        for scope, names in (("all", list(results)), ("held_out", [p for p in results if roles[p] != "tuning"])):
+            for metric in ("HOTA", "IDF1"):
+                if not names:
+                    continue
+                profile = min(names, key=lambda p: results[p][tracker][metric])
+                entry[f"{scope}_{metric}"] = {"profile": profile, "value": results[profile][tracker][metric]}
+        worst[tracker] = entry
+    return worst
+
+
+def _print_worst(worst: dict) -> None:
+    print("\n[worst profile per tracker: the headline (every profile counts; not a mean)]")
+    head = f"{'tracker':<28}{'HOTA':>8}  {'profile':<24}{'IDF1':>8}  {'profile':<24}{'held-out HOTA':>14}"
+    print(head)
+    print("-" * len(head))
+    for tracker, entry in worst.items():
+        hota, idf1 = entry["all_HOTA"], entry["all_IDF1"]
+        held = entry.get("held_out_HOTA")
+        held_cell = f"{100 * held['value']:14.2f}" if held else f"{'-':>14}"
+        print(
+            f"{tracker:<28}{100 * hota['value']:8.2f}  {hota['profile']:<24}"
+            f"{100 * idf1['value']:8.2f}  {idf1['profile']:<24}{held_cell}"
+        )
+
+
+def _ok(flag: bool) -> str:
+    return "OK" if flag else "MISSED"
+
+
+def target_lines(results: dict, worst: dict, speed: dict) -> list[str]:
+    """The issue's targets, per profile and on the worst profile, then the speed targets."""
+    lines = []
+    for profile, per in results.items():
+        j = per[JPTRACK_FULL]
+        if DIOU_PEER in per:
+            d = per[DIOU_PEER]
+            lines.append(
+                f"[{profile}] vs ByteTrack+DIoU: HOTA {100 * j['HOTA']:.2f} vs {100 * d['HOTA']:.2f} "
+                f"({_ok(j['HOTA'] > d['HOTA'])}), IDF1 {100 * j['IDF1']:.2f} vs {100 * d['IDF1']:.2f} "
+                f"({_ok(j['IDF1'] > d['IDF1'])}), IDSW {int(j['IDSW'])} vs {int(d['IDSW'])} "
+                f"({_ok(j['IDSW'] <= d['IDSW'])})"
+            )
+        else:
+            lines.append(f"[{profile}] vs ByteTrack+DIoU: not run (boxmot peers missing or skipped)")
+        b = per[OURS_BYTETRACK]
+        ratio = j["IDSW"] / max(1, b["IDSW"])
+        gain = 100 * (j["IDF1"] - b["IDF1"])
+        lines.append(
+            f"[{profile}] vs our ByteTrack: IDSW {int(j['IDSW'])}/{int(b['IDSW'])} = {ratio:.2f} "
+            f"(<= 0.50: {_ok(ratio <= 0.5)}), IDF1 {100 * b['IDF1']:.2f} -> {100 * j['IDF1']:.2f} = "
+            f"{gain:+.2f} points (>= +10: {_ok(gain >= 10)})"
+        )
+    if DIOU_PEER in worst:
+        for metric in ("HOTA", "IDF1"):
+            mine, peer = worst[JPTRACK_FULL][f"all_{metric}"], worst[DIOU_PEER][f"all_{metric}"]
+            lines.append(
+                f"[worst profile] {metric}: JPTrack {100 * mine['value']:.2f} ({mine['profile']}) vs "
+                f"ByteTrack+DIoU {100 * peer['value']:.2f} ({peer['profile']}) ({_ok(mine['value'] > peer['value'])})"
+            )
+    for targets, per in speed.items():
+        j, b = per[JPTRACK_FULL], per[OURS_BYTETRACK]
+        ratio = j["mean_ms"] / max(1e-9, b["mean_ms"])
+        budget = 1.0 if targets == 3 else 10.0
+        lines.append(
+            f"[speed {targets} targets] JPTrack {j['mean_ms']:.3f} ms mean (budget {budget:g}: "
+            f"{_ok(j['mean_ms'] <= budget)}), {ratio:.2f}x our ByteTrack"
+            + (f" (target <= 3x: {_ok(ratio <= 3)})" if targets == 3 else "")
+        )
+    return lines
+
+
+def _print_events(events: dict) -> None:
+    categories: list[str] = []
+    for per in events.values():
+        for counts in per.values():
+            categories += [c for c in counts if c not in categories]
+    print("\n[identity switches by event (gldt_core.eval.id_events), per profile; total = IDSW]")
+    head = f"{'profile':<23}{'tracker':<25}{'total':>6}" + "".join(f"{c[:12]:>13}" for c in categories)
+    print(head)
+    print("-" * len(head))
+    for profile, per in events.items():
+        for tracker, counts in per.items():
+            cells = "".join(f"{counts.get(c, 0):13d}" for c in categories)
+            print(f"{profile:<23}{tracker:<25}{sum(counts.values()):6d}{cells}")
+    print("(" + "; ".join(f"{c[:12]} = {c}" for c in categories if len(c) > 12) + ")")
 
 
 def _kalman_microbench() -> dict:
@@ -254,57 +521,6 @@ def _kalman_microbench() -> dict:
     return result
 
 
-def _print_accuracy(results: dict) -> None:
-    columns = ("IDSW", "IDF1", "MOTA", "MOTP", "HOTA", "DetA", "AssA", "FP", "FN", "Frag")
-    groups = list(next(iter(results.values())).keys())
-    for group in groups:
-        print(f"\n[{group}]")
-        head = f"{'tracker':<26}" + "".join(f"{c:>8}" for c in columns)
-        print(head)
-        print("-" * len(head))
-        for tracker, per_group in results.items():
-            m = per_group[group]
-            cells = "".join(
-                f"{int(m[c]):8d}" if c in ("IDSW", "FP", "FN", "Frag") else f"{100 * m[c]:8.2f}" for c in columns
-            )
-            print(f"{tracker:<26}{cells}")
-
-
-def _print_targets(results: dict, speed: dict, peer_names: list[str]) -> list[str]:
-    lines = []
-    base, full = "ByteTrack (ours)", "JPTrack JCMA+PMR"
-    for group in next(iter(results.values())).keys():
-        b, j = results[base][group], results[full][group]
-        ratio = j["IDSW"] / max(1, b["IDSW"])
-        gain = 100 * (j["IDF1"] - b["IDF1"])
-        lines.append(
-            f"[{group}] IDSW JPTrack/ByteTrack = {j['IDSW']}/{b['IDSW']} = {ratio:.2f} "
-            f"(target <= 0.50: {'OK' if ratio <= 0.5 else 'MISSED'}); "
-            f"IDF1 {100 * b['IDF1']:.2f} -> {100 * j['IDF1']:.2f} = {gain:+.2f} points "
-            f"(target >= +10: {'OK' if gain >= 10 else 'MISSED'})"
-        )
-        peers = [p for p in peer_names if p in results]
-        if peers:
-            best_hota = max(peers, key=lambda p: results[p][group]["HOTA"])
-            best_idf1 = max(peers, key=lambda p: results[p][group]["IDF1"])
-            ph, pi = results[best_hota][group]["HOTA"], results[best_idf1][group]["IDF1"]
-            lines.append(
-                f"[{group}] vs best peer: HOTA {100 * j['HOTA']:.2f} vs {100 * ph:.2f} ({best_hota}), "
-                f"IDF1 {100 * j['IDF1']:.2f} vs {100 * pi:.2f} ({best_idf1}) "
-                f"(target >=: {'OK' if j['HOTA'] >= ph and j['IDF1'] >= pi else 'MISSED'})"
-            )
-    for targets, per in speed.items():
-        j, b = per[full], per[base]
-        ratio = j["mean_ms"] / max(1e-9, b["mean_ms"])
-        budget = 1.0 if targets == 3 else 10.0
-        lines.append(
-            f"[speed {targets} targets] JPTrack {j['mean_ms']:.3f} ms mean (budget {budget:g}: "
-            f"{'OK' if j['mean_ms'] <= budget else 'MISSED'}), {ratio:.2f}x our ByteTrack "
-            + ("(target <= 3x: " + ("OK" if ratio <= 3 else "MISSED") + ")" if targets == 3 else "")
-        )
-    return lines
-
-
 def run_bench(args: argparse.Namespace) -> int:
     """Handler of ``gldt bench tracking``."""
     import json
@@ -315,40 +531,54 @@ def run_bench(args: argparse.Namespace) -> int:
     from threadpoolctl import threadpool_limits
 
     if args.quick:
-        args.sim_scenes, args.sim_frames, args.real_clips, args.speed_frames = 1, 120, 2, 60
-    for option in ("sim_scenes", "real_clips"):
-        if getattr(args, option) < 0:
-            raise ValueError(f"--{option.replace('_', '-')} must be >= 0")
-    if args.sim_frames < 2 or args.speed_frames < 2:
-        raise ValueError("--sim-frames and --speed-frames must be >= 2")
+        args.sequences, args.seconds, args.detector_clips, args.speed_frames = 1, 4.0, 1, 60
+        args.detector_frames = 60 if args.detector_frames is None else min(args.detector_frames, 60)
+    if args.sequences < 0 or args.detector_clips < 0:
+        raise ValueError("--sequences and --detector-clips must be >= 0")
+    if not args.seconds > 0 or args.speed_frames < 2:
+        raise ValueError("--seconds must be > 0 and --speed-frames >= 2")
+    if args.detector_frames is not None and args.detector_frames < 2:
+        raise ValueError("--detector-frames must be >= 2")
+    names = select_profiles(args.profiles)
     start = time.time()
+    print("gldt bench tracking")
+    print(
+        f"  machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
+        "BLAS limited to 1 thread"
+    )
+    runs, notes = build_profiles(args, names)
+    runs = {name: run for name, run in runs.items() if run.sequences}
     with threadpool_limits(limits=1):
         ours = _our_factories()
         peers, peer_note = _peer_factories(args.no_peers)
         factories = {**ours, **peers}
-        groups, notes = _load_sequences(args)
-        print("gldt bench tracking")
-        print(
-            f"  machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}; "
-            "BLAS limited to 1 thread"
-        )
         for note in notes + [peer_note]:
             print(f"  {note}")
-        if not groups:
-            raise ValueError("no streams to run: no synthetic scenes and no real clips")
-        results = _run_accuracy(groups, factories, args.seed)
-        _print_accuracy(results)
+        print("  profiles (TUNING: defaults may be tuned on them; HELD OUT: never tuned on):")
+        for run in runs.values():
+            print(f"    {run.summary()}")
+        if not runs:
+            raise ValueError("no streams to run: every selected profile was skipped or empty")
+        results, kept = _run_accuracy(runs, factories)
+        _print_accuracy(results, runs)
+        worst = worst_profiles(results, {name: run.role for name, run in runs.items()})
+        _print_worst(worst)
+        events, events_note = _id_switch_breakdown(kept)
+        if events is None:
+            print(f"\n{events_note} (hook: gldt_core.bench.tracking._id_switch_breakdown)")
+        else:
+            _print_events(events)
         speed, speed_source = _run_speed(factories, args.speed_frames, args.seed)
         print(
-            f"\n[update time per frame, ms; streams from {speed_source}, {args.speed_frames} frames, "
-            f"best of {SPEED_REPEATS}]"
+            f"\n[update time per frame, ms, one core; streams from {speed_source}, {args.speed_frames} frames "
+            f"at 30 Hz, our stream model, best of {SPEED_REPEATS}]"
         )
-        head = f"{'tracker':<26}{'3 mean':>9}{'3 p99':>9}{'50 mean':>9}{'50 p99':>9}"
+        head = f"{'tracker':<28}{'3 mean':>9}{'3 p99':>9}{'50 mean':>9}{'50 p99':>9}"
         print(head)
         print("-" * len(head))
         for name in factories:
             a, b = speed[3][name], speed[50][name]
-            print(f"{name:<26}{a['mean_ms']:9.3f}{a['p99_ms']:9.3f}{b['mean_ms']:9.3f}{b['p99_ms']:9.3f}")
+            print(f"{name:<28}{a['mean_ms']:9.3f}{a['p99_ms']:9.3f}{b['mean_ms']:9.3f}{b['p99_ms']:9.3f}")
         kalman = _kalman_microbench()
         for n in (3, 50):
             line = f"Kalman predict+update of {n} tracks per frame: ours (batched) {kalman[f'ours_{n}_us']:.1f} us"
@@ -356,21 +586,41 @@ def run_bench(args: argparse.Namespace) -> int:
                 ratio = kalman[f"filterpy_{n}_us"] / kalman[f"ours_{n}_us"]
                 line += f", filterpy loop {kalman[f'filterpy_{n}_us']:.1f} us ({ratio:.1f}x ours)"
             print(("\n" if n == 3 else "") + line)
-        print("\n[targets of issue 4]")
-        target_lines = _print_targets(results, speed, list(peers))
-        for line in target_lines:
+        print("\n[targets, per profile (JPTrack = JPTrack JCMA+PMR)]")
+        lines = target_lines(results, worst, speed)
+        for line in lines:
             print("  " + line)
     print(f"\n(total {time.time() - start:.0f} s)")
     if args.json:
         payload = {
-            "notes": notes + [peer_note],
+            "notes": notes + [peer_note, events_note],
+            "profiles": {
+                name: {
+                    "role": run.role,
+                    "description": run.description,
+                    "parameters": run.parameters,
+                    "sequences": [
+                        {
+                            "name": s.name,
+                            "frames": s.frames,
+                            "fps": s.fps,
+                            "size": list(s.size),
+                            "detections": len(s.dets),
+                        }
+                        for s in run.sequences
+                    ],
+                }
+                for name, run in runs.items()
+            },
             "accuracy": results,
+            "worst": worst,
+            "id_events": events,
             "speed": {str(k): v for k, v in speed.items()},
             "kalman": kalman,
-            "targets": target_lines,
+            "targets": lines,
         }
         tmp = args.json + ".part"
         with open(tmp, "w", encoding="utf-8") as handle:
-            json.dump(payload, handle, indent=2, sort_keys=True)
+            json.dump(payload, handle, indent=2, sort_keys=True, default=str)
         os.replace(tmp, args.json)
     return 0
