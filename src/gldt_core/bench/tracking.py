@@ -15,10 +15,11 @@ Every tracker sees the same detection streams, from several independent **profil
   targets, Beta(5,2) scores;
 * ``ego-motion-25hz`` (HELD OUT): 25 Hz, a camera pan/roll random walk applied to every box (gt
   and detections alike), near-uniform Beta(1.2,1.2) scores, drifting clutter;
-* ``real-detector`` (HELD OUT): what the shipped global detector (AM-YOLO with its second stage)
-  reports on every frame at score >= 0.05 on the V_DRONE clips of both Halmstad validation splits
-  (:mod:`gldt_core.eval.detector_streams`; cached on disk per model, ``--detector-clips`` and
-  ``--detector-frames`` bound the work; skipped with a reason when the clips are absent).
+* ``real-detector-val`` (TUNING) and ``real-detector-val_b`` (HELD OUT): what the shipped global
+  detector (AM-YOLO with its second stage) reports on every frame at score >= 0.05 on the V_DRONE
+  clips of the Halmstad validation split ``val``, and of the disjoint split ``val_b``
+  (:mod:`gldt_core.eval.detector_streams`; cached on disk per model, ``--detector-clips`` (per
+  split) and ``--detector-frames`` bound the work; skipped with a reason when the clips are absent).
 
 TUNING profiles are where tracker defaults may be tuned; HELD OUT ones never are. Trackers get
 ``t = (frame - 1) / fps`` at each profile's own frame rate. In the same process and on the same
@@ -49,7 +50,9 @@ if TYPE_CHECKING:
 
 DEFAULT_HALMSTAD = None  # resolved by gldt_core.paths.halmstad_root() when used
 #: The profile of real detector output (held out), beside the synthetic ones.
-REAL_PROFILE = "real-detector"
+#: The real detector's streams, one profile per Halmstad validation split: defaults may be tuned
+#: on ``val``'s clips; ``val_b``'s are held out.
+REAL_PROFILES = {"real-detector-val": "val", "real-detector-val_b": "val_b"}
 OURS_BYTETRACK, JPTRACK_FULL, DIOU_PEER = "ByteTrack (ours)", "JPTrack JCMA+PMR", "boxmot ByteTrack (DIoU)"
 #: Trackers whose identity switches are broken down by event.
 EVENT_TRACKERS = (JPTRACK_FULL, DIOU_PEER)
@@ -68,7 +71,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--seconds", type=float, default=20.0, help="duration of each synthetic sequence (default 20)")
     parser.add_argument("--halmstad", default=DEFAULT_HALMSTAD, help="Halmstad visible dataset folder")
     parser.add_argument(
-        "--detector-clips", type=int, default=0, help="Halmstad validation drone clips of real-detector (0 = all)"
+        "--detector-clips",
+        type=int,
+        default=0,
+        help="Halmstad validation drone clips per real-detector profile (0 = all)",
     )
     parser.add_argument(
         "--detector-frames", type=int, default=None, help="frames per real-detector clip (default: whole clips)"
@@ -86,7 +92,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _profile_names() -> list[str]:
     from gldt_core.eval.streams import PROFILES
 
-    return [p.name for p in PROFILES] + [REAL_PROFILE]
+    return [p.name for p in PROFILES] + list(REAL_PROFILES)
 
 
 def select_profiles(option: str | None) -> list[str]:
@@ -223,8 +229,8 @@ def build_profiles(args: argparse.Namespace, names: list[str]) -> tuple[dict[str
     runs: dict[str, ProfileRun] = {}
     notes: list[str] = []
     for name in names:
-        if name == REAL_PROFILE:
-            run, note = _real_profile(args)
+        if name in REAL_PROFILES:
+            run, note = _real_profile(args, name)
             notes.append(note)
             if run is not None:
                 runs[name] = run
@@ -238,7 +244,9 @@ def build_profiles(args: argparse.Namespace, names: list[str]) -> tuple[dict[str
     return runs, notes
 
 
-def _real_profile(args: argparse.Namespace) -> tuple[ProfileRun | None, str]:
+def _real_profile(args: argparse.Namespace, name: str) -> tuple[ProfileRun | None, str]:
+    """The real detector's streams on the V_DRONE clips of one validation split
+    (:data:`REAL_PROFILES`): ``val`` for tuning, ``val_b`` held out."""
     from pathlib import Path
 
     from gldt_core.eval.detector_streams import (
@@ -247,32 +255,38 @@ def _real_profile(args: argparse.Namespace) -> tuple[ProfileRun | None, str]:
         halmstad_drone_clips,
         shipped_detector_cache,
     )
-    from gldt_core.eval.streams import HELD_OUT
+    from gldt_core.eval.streams import HELD_OUT, TUNING
     from gldt_core.paths import halmstad_root
 
     root = Path(args.halmstad or halmstad_root())
     if not (root / "videos").is_dir() or not (root / "gt").is_dir():
-        return None, f"{REAL_PROFILE}: SKIPPED, no Halmstad videos/ and gt/ under {root}"
+        return None, f"{name}: SKIPPED, no Halmstad videos/ and gt/ under {root}"
     cache = shipped_detector_cache(score_threshold=DEFAULT_SCORE_THRESHOLD)
-    clips = halmstad_drone_clips(root, args.detector_clips)
+    split = REAL_PROFILES[name]
+    clips = halmstad_drone_clips(root, args.detector_clips, split)
     if not clips:
-        return None, f"{REAL_PROFILE}: SKIPPED, no V_DRONE validation clips under {root}"
+        return None, f"{name}: SKIPPED, no V_DRONE validation clips under {root}"
     sequences = halmstad_detector_sequences(
-        root, cache, args.detector_clips, args.detector_frames, log=lambda line: print(f"  {line}", flush=True)
+        root,
+        cache,
+        args.detector_clips,
+        args.detector_frames,
+        log=lambda line: print(f"  {line}", flush=True),
+        split=split,
     )
-    splits = sorted({split for split, _ in clips})
     parameters = {
         "detector": cache.description,
         "cache": str(cache.directory),
-        "clips": [f"{split}/{name}" for split, name in clips],
+        "clips": [f"{clip_split}/{clip}" for clip_split, clip in clips],
         "frames_per_clip": args.detector_frames,
         "score_threshold": DEFAULT_SCORE_THRESHOLD,
     }
     description = (
-        f"{cache.description} on every frame of Halmstad V_DRONE validation clips ({', '.join(splits)}, 640x512)"
+        f"{cache.description} on every frame of the Halmstad V_DRONE clips of validation split {split} (640x512)"
     )
-    note = f"{REAL_PROFILE}: {len(sequences)} clips, detector streams cached in {cache.directory}"
-    return ProfileRun(REAL_PROFILE, HELD_OUT, description, parameters, sequences), note
+    note = f"{name}: {len(sequences)} clips, detector streams cached in {cache.directory}"
+    role = TUNING if split == "val" else HELD_OUT
+    return ProfileRun(name, role, description, parameters, sequences), note
 
 
 def _track(make: Any, sequence: StreamSequence, timings: list[float] | None = None) -> np.ndarray:

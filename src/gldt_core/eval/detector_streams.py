@@ -243,14 +243,19 @@ def shipped_detector_cache(
     )
 
 
-def halmstad_drone_clips(root: Path, clips: int = 0) -> list[tuple[str, str]]:
-    """``[(split, clip)]``: the V_DRONE clips of both validation splits, alternating ``val`` and
-    ``val_b`` (so the first ``clips`` come from both); ``clips`` 0 = all."""
+def halmstad_drone_clips(root: Path, clips: int = 0, split: str | None = None) -> list[tuple[str, str]]:
+    """``[(split, clip)]``: the V_DRONE clips of one validation split, or of both alternating
+    ``val`` and ``val_b`` (so the first ``clips`` come from both); ``clips`` 0 = all."""
     from gldt_core.eval.halmstad_split import halmstad_split
 
-    split = halmstad_split(root)
-    val = [("val", n) for n in split["val"] if n.startswith("V_DRONE")]
-    val_b = [("val_b", n) for n in split["val_b"] if n.startswith("V_DRONE")]
+    splits = halmstad_split(root)
+    val = [("val", n) for n in splits["val"] if n.startswith("V_DRONE")]
+    val_b = [("val_b", n) for n in splits["val_b"] if n.startswith("V_DRONE")]
+    if split is not None:
+        chosen = {"val": val, "val_b": val_b}.get(split)
+        if chosen is None:
+            raise ValueError(f"unknown validation split {split!r} (val, val_b)")
+        return chosen[:clips] if clips > 0 else chosen
     mixed = [pair for both in zip(val, val_b) for pair in both] + val[len(val_b) :] + val_b[len(val) :]
     return mixed[:clips] if clips > 0 else mixed
 
@@ -261,6 +266,7 @@ def halmstad_detector_sequences(
     clips: int = 0,
     max_frames: int | None = None,
     log: Callable[[str], None] | None = None,
+    split: str | None = None,
 ) -> list[Any]:
     """:class:`gldt_core.eval.streams.StreamSequence` s of the real detector on the Halmstad
     validation drone clips (:func:`halmstad_drone_clips`), ground truth from ``gt/<clip>.txt``
@@ -270,7 +276,7 @@ def halmstad_detector_sequences(
     from gldt_core.io.video import VideoSource
 
     sequences = []
-    for split, name in halmstad_drone_clips(root, clips):
+    for clip_split, name in halmstad_drone_clips(root, clips, split):
         video = VideoSource(root / "videos" / f"{name}.mp4", root / "gt" / f"{name}.txt")
 
         def images(video: VideoSource = video) -> Iterable[np.ndarray]:
@@ -280,7 +286,7 @@ def halmstad_detector_sequences(
         stream = cache.stream(name, images, video.fps, video.size, max_frames, total_frames=len(video))
         if log is not None and not stream.from_cache:
             log(
-                f"detector stream {name} ({split}): {stream.frames} frames, {len(stream.rows)} detections, "
+                f"detector stream {name} ({clip_split}): {stream.frames} frames, {len(stream.rows)} detections, "
                 f"{time.perf_counter() - start:.1f} s (cached in {cache.directory})"
             )
         gt = read_mot(root / "gt" / f"{name}.txt")
