@@ -36,10 +36,10 @@ test-slow: setup
 test-all: setup
 	@bash scripts/with_ros_env.sh $(VENV_PY) -m pytest $(PYTEST_ARGS)
 
-# boxmot is only a benchmark peer; it declares torch/torchvision deps we must not resolve (they
-# would pull a CUDA torch), so it is installed without them plus the two it really imports.
+# boxmot (the reference ByteTrack of the tests, the peers of `gldt bench tracking`) is installed by
+# scripts/setup.sh with the test extra: without its declared torch/torchvision dependencies (they
+# would pull a CUDA torch), plus the two it really imports. Kept as a name for that step.
 bench-peers: setup
-	@.venv/bin/python -m pip install -q --no-deps boxmot==25.0.0 && .venv/bin/python -m pip install -q lapx==0.11.1 rich
 
 # Soak of the node graph (issue #9): loop the real sample bag at 30 Hz for SOAK_MINUTES, report
 # each node's RSS growth, track-table size and dropped frames (a benchmark, minutes long).

@@ -74,6 +74,27 @@ if ! step_done gldt-core "$core_hash"; then
     mark_done gldt-core "$core_hash"
 fi
 
+# 3b. boxmot, the reference trackers the tests compare ours with (ByteTrack) and `gldt bench
+# tracking` runs as peers, with the test extra. boxmot declares torch, torchvision and more as
+# dependencies; resolving them would pull a CUDA torch over the CPU one of the train extra, so it
+# goes in without its dependencies, plus the two it imports that the venv lacks (lapx, rich).
+# Its trackers import torch, which the train extra brings.
+BOXMOT_PINS=("boxmot==25.0.0")
+BOXMOT_DEPS=("lapx==0.11.1" "rich")
+if [[ ",$EXTRAS," == *",test,"* ]]; then
+    peers_hash=$(inputs_hash "${BOXMOT_PINS[@]}" "${BOXMOT_DEPS[@]}" "$STAMPS/gldt-core")
+    if ! step_done boxmot "$peers_hash"; then
+        echo "setup: installing ${BOXMOT_PINS[*]} (without its dependencies) and ${BOXMOT_DEPS[*]}"
+        run_logged pip-boxmot "${PIP[@]}" install --no-deps "${BOXMOT_PINS[@]}"
+        run_logged pip-boxmot-deps "${PIP[@]}" install "${BOXMOT_DEPS[@]}"
+        "$VENV/bin/python" -c 'import torch' >/dev/null 2>&1 \
+            || fail "boxmot" "its trackers import torch, which the train extra installs (scripts/setup.sh test,train)"
+        "$VENV/bin/python" -c 'from boxmot import BotSort, ByteTrack, OcSort' >"$LOGS/boxmot-import.log" 2>&1 \
+            || fail "boxmot" "import failed: $(grep -E -m1 'Error' "$LOGS/boxmot-import.log" | cut -c1-200) (full log: log/setup/boxmot-import.log)"
+        mark_done boxmot "$peers_hash"
+    fi
+fi
+
 # 4. The wheels' CMake exports carry the wheel build machine's Python paths; point them here.
 cmake_hash=$(inputs_hash "$STAMPS/ros-wheels")
 if ! step_done cmake-paths "$cmake_hash"; then

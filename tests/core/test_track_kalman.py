@@ -1,21 +1,29 @@
-"""The numpy constant-velocity Kalman filter is filterpy's algebra with real elapsed time."""
+"""The numpy constant-velocity Kalman filter is filterpy's algebra with real elapsed time; JPTrack's
+pixel floors are parameters of its model (ByteTrack's reference filter has none: the comparison
+with boxmot's is in test_track_bytetrack_reference.py)."""
 
 from __future__ import annotations
 
+import filterpy.kalman as filterpy_kalman
 import numpy as np
 import pytest
 
-from gldt_core.track.kalman import ConstantVelocityKalman
+from gldt_core.track import ByteTrack, JPTrack, JPTrackConfig
+from gldt_core.track.kalman import BYTETRACK_MODEL, ConstantVelocityKalman, KalmanModel
 
-filterpy_kalman = pytest.importorskip("filterpy.kalman")
+#: JPTrack's filter, with its default floors.
+JPTRACK_MODEL = JPTrackConfig().kalman_model()
 
 
-def test_predict_and_update_equal_filterpy_with_irregular_time_steps() -> None:
+@pytest.mark.parametrize(
+    "model", [KalmanModel(), JPTRACK_MODEL, BYTETRACK_MODEL], ids=["plain", "jptrack", "bytetrack"]
+)
+def test_predict_and_update_equal_filterpy_with_irregular_time_steps(model: KalmanModel) -> None:
     rng = np.random.default_rng(3)
-    ours = ConstantVelocityKalman(np.array([100.0, 50.0, 20.0, 12.0]))
+    ours = ConstantVelocityKalman(np.array([100.0, 50.0, 20.0, 12.0]), model=model)
     ref = filterpy_kalman.KalmanFilter(dim_x=8, dim_z=4)
-    ref.x = ours.mean.copy().reshape(8, 1)
-    ref.P = ours.covariance.copy()
+    ref.x = ours.state.copy().reshape(8, 1)
+    ref.P = ours.state_covariance.copy()
     ref.H = np.hstack([np.eye(4), np.zeros((4, 4))])
     truth = np.array([100.0, 50.0, 20.0, 12.0])
     for step in range(40):
@@ -25,16 +33,16 @@ def test_predict_and_update_equal_filterpy_with_irregular_time_steps() -> None:
         ref.Q = np.diag(q)
         ref.predict()
         ours.predict(dt)
-        np.testing.assert_allclose(ours.mean, ref.x.ravel(), rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(ours.covariance, ref.P, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(ours.state, ref.x.ravel(), rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(ours.state_covariance, ref.P, rtol=1e-9, atol=1e-9)
         truth = truth + np.array([90.0, -30.0, 0.0, 0.0]) * dt
         if step % 5 != 4:  # some steps coast without a measurement
             z = truth + rng.normal(0, 1.0, 4)
             ref.R = ours.measurement_noise()
-            ref.update(z.reshape(4, 1))
+            ref.update(ours.measured(z).reshape(4, 1))
             ours.update(z)
-            np.testing.assert_allclose(ours.mean, ref.x.ravel(), rtol=1e-9, atol=1e-9)
-            np.testing.assert_allclose(ours.covariance, ref.P, rtol=1e-9, atol=1e-7)
+            np.testing.assert_allclose(ours.state, ref.x.ravel(), rtol=1e-9, atol=1e-9)
+            np.testing.assert_allclose(ours.state_covariance, ref.P, rtol=1e-9, atol=1e-7)
 
 
 def _track_constant_velocity(fps: float, seconds: float) -> ConstantVelocityKalman:
@@ -123,23 +131,29 @@ def _box_iou_cxcywh(a: np.ndarray, b: np.ndarray) -> float:
     return inter / (a[2] * a[3] + b[2] * b[3] - inter)
 
 
-def test_a_small_target_on_a_shaking_camera_is_followed_not_trailed() -> None:
-    """A 6 px drone crossing at 6 px per frame while the camera shakes it by 3 px per frame (the
-    shake moves a 6 px target as far as a 60 px one), fed its exact boxes: with ByteTrack's
-    size-proportional noise alone the filter smoothed the shake away and its box overlapped the
-    measurement by IoU < 0.5 (the metrics' match threshold) on a third of the frames; with the
-    pixel floor under the centre's process noise, on none."""
+def _share_followed_on_a_shaking_camera(model: KalmanModel) -> float:
+    """A 6 px drone crossing at 6 px per frame while the camera shakes it by 3 px per frame, fed
+    its exact boxes: the share of frames (after the first 20) where the filtered box overlaps the
+    measurement by IoU >= 0.5 (the metrics' match threshold)."""
     rng = np.random.default_rng(7)
     size, fps = 6.0, 30.0
     shake = rng.normal(0.0, 3.0, (150, 2))
     measured = [np.array([100 + 6.0 * k + shake[k, 0], 300 + 1.5 * k + shake[k, 1], size, size]) for k in range(150)]
-    kf = ConstantVelocityKalman(measured[0])
+    kf = ConstantVelocityKalman(measured[0], model=model)
     ious = []
     for k in range(1, 150):
         kf.predict(1.0 / fps)
         kf.update(measured[k])
         ious.append(_box_iou_cxcywh(kf.mean[:4], measured[k]))
-    assert np.mean(np.array(ious[20:]) >= 0.5) > 0.95, np.mean(np.array(ious[20:]) >= 0.5)
+    return float(np.mean(np.array(ious[20:]) >= 0.5))
+
+
+def test_a_small_target_on_a_shaking_camera_is_followed_not_trailed() -> None:
+    """The shake moves a 6 px target as far as a 60 px one. With size-proportional noise alone
+    (ByteTrack's, no floors) the filter smooths the shake away and its box misses IoU 0.5 on a
+    third of the frames; with JPTrack's pixel floor under the centre's process noise, on none."""
+    assert _share_followed_on_a_shaking_camera(JPTRACK_MODEL) > 0.95
+    assert _share_followed_on_a_shaking_camera(KalmanModel()) < 0.8
 
 
 def test_a_steady_target_keeps_a_smooth_velocity() -> None:
@@ -149,7 +163,7 @@ def test_a_steady_target_keeps_a_smooth_velocity() -> None:
     for seed in range(10):
         rng = np.random.default_rng(seed)
         velocity = np.array([60.0, 20.0])
-        kf = ConstantVelocityKalman(np.array([200.0, 300.0, 24.0, 16.0]))
+        kf = ConstantVelocityKalman(np.array([200.0, 300.0, 24.0, 16.0]), model=JPTRACK_MODEL)
         for k in range(1, 150):
             centre = np.array([200.0, 300.0]) + velocity * k / 30 + rng.normal(0, 1.0, 2)
             kf.predict(1 / 30)
@@ -160,10 +174,10 @@ def test_a_steady_target_keeps_a_smooth_velocity() -> None:
 
 
 def test_the_floors_leave_boxes_of_32_px_and_more_to_bytetrack() -> None:
-    """From 32 px on the noise is ByteTrack's (1/20 and 1/160 of the size, ten times that for a
-    new track's velocity); below, only the centre's position noise and a new track's centre
+    """From 32 px on JPTrack's noise is ByteTrack's (1/20 and 1/160 of the size, ten times that
+    for a new track's velocity); below, only the centre's position noise and a new track's centre
     velocity are lifted to their floors in pixels, never the sizes or their velocities."""
-    big = ConstantVelocityKalman(np.array([500.0, 500.0, 200.0, 180.0]))
+    big = ConstantVelocityKalman(np.array([500.0, 500.0, 200.0, 180.0]), model=JPTRACK_MODEL)
     np.testing.assert_allclose(
         np.sqrt(np.diag(big.covariance)[4:]) / 30, 10 * np.array([200.0, 180.0, 200.0, 180.0]) / 160
     )
@@ -171,14 +185,98 @@ def test_the_floors_leave_boxes_of_32_px_and_more_to_bytetrack() -> None:
     sizes = np.array([200.0, 180.0, 200.0, 180.0])
     np.testing.assert_allclose(q[:4], (sizes / 20) ** 2)
     np.testing.assert_allclose(q[4:], (sizes / 160 * 30) ** 2)
-    edge = ConstantVelocityKalman(np.array([500.0, 500.0, 32.0, 32.0]))  # where both floors end
+    edge = ConstantVelocityKalman(np.array([500.0, 500.0, 32.0, 32.0]), model=JPTRACK_MODEL)  # both floors end
     _, q = edge.transition(1 / 30)
     np.testing.assert_allclose(np.sqrt(q[:4]), 32.0 / 20)
     np.testing.assert_allclose(np.sqrt(np.diag(edge.covariance)[4:]) / 30, 10 * 32.0 / 160)
-    small = ConstantVelocityKalman(np.array([500.0, 500.0, 6.0, 6.0]))
+    small = ConstantVelocityKalman(np.array([500.0, 500.0, 6.0, 6.0]), model=JPTRACK_MODEL)
     _, q = small.transition(1 / 30)
     np.testing.assert_allclose(np.sqrt(q[:2]), 1.5)  # the centre: the floor
     np.testing.assert_allclose(np.sqrt(q[2:4]), 0.5)  # the size: the filter's old floor, as before
     np.testing.assert_allclose(np.sqrt(q[4:]) / 30, 0.5 / 8)  # velocities: unchanged
     birth_velocity_std = np.sqrt(np.diag(small.covariance)[4:]) / 30
     np.testing.assert_allclose(birth_velocity_std, [2.0, 2.0, 10 * 0.5 / 8, 10 * 0.5 / 8])
+
+
+def test_without_floors_the_noise_is_proportional_to_the_size_at_any_size() -> None:
+    small = ConstantVelocityKalman(np.array([500.0, 500.0, 6.0, 4.0]))
+    _, q = small.transition(1 / 30)
+    sizes = np.array([6.0, 4.0, 6.0, 4.0])
+    np.testing.assert_allclose(np.sqrt(q[:4]), sizes / 20)
+    np.testing.assert_allclose(np.sqrt(q[4:]) / 30, sizes / 160)
+    np.testing.assert_allclose(np.sqrt(np.diag(small.covariance)), np.r_[2 * sizes / 20, 10 * sizes / 160 * 30])
+    np.testing.assert_allclose(np.sqrt(np.diag(small.measurement_noise())), sizes / 20)
+
+
+def test_the_trackers_give_their_tracks_their_own_filter() -> None:
+    box = np.array([[100.0, 100.0, 106.0, 104.0, 0.9]])
+    jp, bt = JPTrack(), ByteTrack()
+    jp.update(box, 0.0)
+    bt.update(box, 0.0)
+    assert jp.tracks[0].kf.model == JPTRACK_MODEL and jp.tracks[0].kf.model.min_centre_process_std_px == 1.5
+    assert bt.tracks[0].kf.model == BYTETRACK_MODEL
+    floorless = JPTrack(
+        JPTrackConfig(kf_min_std_px=0.0, kf_centre_process_floor_px=0.0, kf_birth_velocity_floor_px=0.0)
+    )
+    floorless.update(box, 0.0)
+    assert floorless.tracks[0].kf.model == KalmanModel()
+
+
+def test_the_aspect_ratio_filter_reads_as_cx_cy_w_h() -> None:
+    """ByteTrack's [cx, cy, a, h] state is shown as [cx, cy, w, h] (w = a h) with the covariance
+    of that map: a first-order check against finite differences of the map."""
+    rng = np.random.default_rng(11)
+    kf = ConstantVelocityKalman(np.array([300.0, 200.0, 24.0, 16.0]), model=BYTETRACK_MODEL)
+    for k in range(1, 12):
+        kf.predict(1 / 30)
+        kf.update(np.array([300.0 + 4 * k, 200.0 - 2 * k, 24.0 + 0.5 * k, 16.0 + 0.3 * k]) + rng.normal(0, 0.3, 4))
+    a, h, va, vh = kf.state[2], kf.state[3], kf.state[6], kf.state[7]
+    np.testing.assert_allclose(kf.mean[[0, 1, 3, 4, 5, 7]], kf.state[[0, 1, 3, 4, 5, 7]])
+    assert kf.mean[2] == pytest.approx(a * h) and kf.mean[6] == pytest.approx(va * h + a * vh)
+
+    def view(s: np.ndarray) -> np.ndarray:
+        return np.array([s[0], s[1], s[2] * s[3], s[3], s[4], s[5], s[6] * s[3] + s[2] * s[7], s[7]])
+
+    eps = 1e-6
+    jac = np.column_stack([(view(kf.state + eps * e) - view(kf.state - eps * e)) / (2 * eps) for e in np.eye(8)])
+    np.testing.assert_allclose(kf.covariance, jac @ kf.state_covariance @ jac.T, rtol=1e-6, atol=1e-9)
+    assert kf.measured(np.array([1.0, 2.0, 30.0, 20.0])).tolist() == [1.0, 2.0, 1.5, 20.0]
+
+
+def test_stop_height_velocity_keeps_a_coasting_box_at_its_size() -> None:
+    for model in (BYTETRACK_MODEL, KalmanModel()):
+        kf = ConstantVelocityKalman(np.array([100.0, 100.0, 20.0, 20.0]), model=model)
+        for k in range(1, 10):
+            kf.predict(1 / 30)
+            kf.update(np.array([100.0, 100.0, 20.0 + k, 20.0 + k]))
+        assert kf.state[7] > 0
+        kf.stop_height_velocity()
+        h = kf.mean[3]
+        kf.predict(0.5)
+        assert kf.state[7] == 0.0 and kf.mean[3] == pytest.approx(h)
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [{"min_std_px": -0.1}, {"min_centre_process_std_px": float("nan")}, {"aspect_ratio": True, "min_std_px": 0.5}],
+)
+def test_a_model_refuses_negative_floors_and_floors_on_the_reference_filter(kwargs) -> None:
+    with pytest.raises(ValueError):
+        KalmanModel(**kwargs)
+
+
+def test_filters_of_different_models_are_batched_each_with_its_own() -> None:
+    from gldt_core.track.kalman import predict_many, update_many
+
+    boxes = [np.array([100.0, 80.0, 12.0, 8.0]), np.array([300.0, 200.0, 40.0, 30.0])]
+    models = [BYTETRACK_MODEL, JPTRACK_MODEL, KalmanModel()]
+    singles = [ConstantVelocityKalman(b, model=m) for b in boxes for m in models]
+    batch = [ConstantVelocityKalman(b, model=m) for b in boxes for m in models]
+    for f in singles:
+        f.predict(0.1)
+        f.update(f.mean[:4] + 1.0)
+    predict_many(batch, np.full(len(batch), 0.1))
+    update_many(batch, np.array([f.mean[:4] + 1.0 for f in batch]))
+    for a, b in zip(singles, batch):
+        np.testing.assert_allclose(b.state, a.state, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(b.covariance, a.covariance, rtol=1e-10, atol=1e-9)

@@ -19,6 +19,13 @@ and in JPTrack's third, PMR stage, so both run this loop:
    shipped detectors, birds come back at the same place as steadily as drones do.
 
 Time is the caller's timestamp in seconds; nothing counts frames except ``frames_since_update``.
+
+Three switches for ByteTrack's reference, off for JPTrack: the filter of new tracks
+(``kalman``, a :class:`~gldt_core.track.kalman.KalmanModel`), the strict score split
+(``strict_score_split``: high is ``score > t_h``, low ``t_l < score < t_h``, as in the reference
+code; otherwise ``>=``), and whether a one-hit tentative track's filter is predicted before its
+second detection is matched (``predict_tentative``; the reference predicts only the tracks of its
+first-stage pool, so that match corrects the filter as it was born).
 """
 
 from __future__ import annotations
@@ -38,7 +45,7 @@ from gldt_core.track.boxes import (
     validate_time,
 )
 from gldt_core.track.fastpath import on_floats
-from gldt_core.track.kalman import predicted_many
+from gldt_core.track.kalman import ConstantVelocityKalman, KalmanModel, predicted_many
 from gldt_core.track.state import (
     Track,
     TrackState,
@@ -71,6 +78,9 @@ class MultiStageTracker:
         history_len: int,
         image_size: tuple[int, int],
         low_score_birth_frames: int = 0,
+        kalman: KalmanModel | None = None,
+        strict_score_split: bool = False,
+        predict_tentative: bool = True,
     ) -> None:
         if not 0.0 <= t_low <= t_high <= 1.0:
             raise ValueError(f"need 0 <= t_l <= t_h <= 1, got t_l={t_low}, t_h={t_high}")
@@ -89,6 +99,9 @@ class MultiStageTracker:
         if low_score_birth_frames < 0:
             raise ValueError(f"low_score_birth_frames must be >= 0 (0: off), got {low_score_birth_frames}")
         self._low_birth = LowScoreBirth(low_score_birth_frames) if low_score_birth_frames > 0 else None
+        self._kalman = kalman if kalman is not None else KalmanModel()
+        self._strict_scores = strict_score_split
+        self._predict_tentative = predict_tentative
         self.reset()
 
     # --- public API -------------------------------------------------------------------------
@@ -142,11 +155,21 @@ class MultiStageTracker:
         self._last_t = t
         first_frame = self._updates == 0
         self._updates += 1
-        advance_tracks(self._tracks, t)
+        if self._predict_tentative:
+            advance_tracks(self._tracks, t)
+        else:
+            advance_tracks([tr for tr in self._tracks if tr.state is not TrackState.TENTATIVE], t)
+            for tr in self._tracks:
+                if tr.state is TrackState.TENTATIVE:  # its filter stays as born (module docstring)
+                    tr.kf_t = tr.now_t = t
 
         scores = dets[:, 4]
-        high = (scores >= self._t_high).nonzero()[0]  # np.flatnonzero without its wrapper
-        low = ((scores >= self._t_low) & (scores < self._t_high)).nonzero()[0]
+        if self._strict_scores:
+            high = (scores > self._t_high).nonzero()[0]
+            low = ((scores > self._t_low) & (scores < self._t_high)).nonzero()[0]
+        else:
+            high = (scores >= self._t_high).nonzero()[0]  # np.flatnonzero without its wrapper
+            low = ((scores >= self._t_low) & (scores < self._t_high)).nonzero()[0]
         active = [tr for tr in self._tracks if tr.state in OUTPUT_STATES]
         lost = [tr for tr in self._tracks if tr.state is TrackState.LOST]
         tentative = [tr for tr in self._tracks if tr.state is TrackState.TENTATIVE]
@@ -198,12 +221,8 @@ class MultiStageTracker:
         # New tracks from the remaining confident detections.
         for d in rest_high:
             if dets[d, 4] >= self._new_thresh:
-                state = TrackState.CONFIRMED if first_frame else TrackState.TENTATIVE
-                self._tracks.append(
-                    Track(self._next_id, dets[d, :4], dets[d, 4], t, state, self._ref_fps, self._history_len, rel[d])
-                )
+                self._start_track(dets, int(d), t, TrackState.CONFIRMED if first_frame else TrackState.TENTATIVE, rel)
                 updated.add(id(self._tracks[-1]))
-                self._next_id += 1
 
         # Confirmed tracks from low-score detections seen at the same place K frames running.
         if self._low_birth is not None:
@@ -211,20 +230,8 @@ class MultiStageTracker:
                 np.int64
             )
             for d in self._low_birth.update(dets, unclaimed):
-                self._tracks.append(
-                    Track(
-                        self._next_id,
-                        dets[d, :4],
-                        dets[d, 4],
-                        t,
-                        TrackState.CONFIRMED,
-                        self._ref_fps,
-                        self._history_len,
-                        rel[d],
-                    )
-                )
+                self._start_track(dets, int(d), t, TrackState.CONFIRMED, rel)
                 updated.add(id(self._tracks[-1]))
-                self._next_id += 1
 
         kept = []
         for tr in self._tracks:
@@ -266,6 +273,15 @@ class MultiStageTracker:
         return rest_high, rest_low
 
     # --- helpers ----------------------------------------------------------------------------
+    def _start_track(
+        self, dets: np.ndarray, d: int, t: float, state: TrackState, rel: list[tuple[float, float]]
+    ) -> None:
+        """Append a new track on detection ``d``, with the next id and this tracker's filter."""
+        tr = Track(self._next_id, dets[d, :4], dets[d, 4], t, state, self._ref_fps, self._history_len, rel[d])
+        tr.kf = ConstantVelocityKalman(tr.kf.mean[:4].copy(), self._ref_fps, self._kalman)
+        self._tracks.append(tr)
+        self._next_id += 1
+
     def _relative_positions(
         self, dets: np.ndarray, rois: np.ndarray | None, t: float, frame: int | None
     ) -> list[tuple[float, float]]:
@@ -291,10 +307,9 @@ class MultiStageTracker:
         x, y = relative_centre(*boxes, *window)
         return list(zip(x.tolist(), y.tolist()))
 
-    @staticmethod
-    def _remove_duplicates(tracks: list[Track]) -> list[Track]:
-        """ByteTrack's remove_duplicate_stracks: an active and a lost track on the same spot
-        (IoU > 0.85) are one object; keep the older one."""
+    def _remove_duplicates(self, tracks: list[Track]) -> list[Track]:
+        """The tracks kept at the end of a frame (JPTrack; ByteTrack has the reference's rule): an
+        active and a lost track on the same spot (IoU > 0.85) are one object; keep the older one."""
         active = [tr for tr in tracks if tr.state in OUTPUT_STATES]
         lost = [tr for tr in tracks if tr.state is TrackState.LOST]
         if not active or not lost:

@@ -26,6 +26,8 @@ Table I value is a config field with the paper's default. What the paper leaves 
 * ``pmr_vel_std`` (2 px per reference frame) is the unmodelled velocity change allowed during an
   occlusion: on the benchmark's real drone clips a tighter gate recovered too few tracks after
   1-2 s bursts of misses, while wider gates start to pick clutter (docs/experiment-log.md).
+* The Kalman filter is on ``[cx, cy, w, h]`` with pixel floors under its noise (``kf_*``, see
+  :mod:`.kalman`), for small targets on a shaking camera; ByteTrack keeps the reference filter.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ from gldt_core.track.base import MultiStageTracker, iou_pair_cost
 from gldt_core.track.boxes import midpoint
 from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
+from gldt_core.track.kalman import KalmanModel
 from gldt_core.track.pmr import c_time, fit_pmr, floor_variance, p_match_many
 from gldt_core.track.state import Track, TrackState, box_row, update_tracks
 
@@ -98,6 +101,24 @@ class JPTrackConfig:
     # Start a confirmed track from a low-score detection seen at the same place this many frames
     # running (0: off, the paper's behaviour; see gldt_core.track.birth).
     low_score_birth_frames: int = 0
+    # Floors of the Kalman filter's noise, in pixels (gldt_core.track.kalman, KalmanModel): the
+    # smallest size-proportional std (keeps 2 px boxes well conditioned); the centre's process
+    # noise per reference frame, how far the camera's shake and turn can move any target between
+    # two frames (1/20 of the size reaches it at 30 px; chosen on the real validation clips with
+    # the shipped detectors); a new track's centre-velocity std per reference frame, since a drone
+    # can cross the image at a few pixels per frame whatever its size (10/160 of the size reaches
+    # it at 32 px). docs/experiment-log.md (Tracking, 2026-12-03) has the measurements.
+    kf_min_std_px: float = 0.5
+    kf_centre_process_floor_px: float = 1.5
+    kf_birth_velocity_floor_px: float = 2.0
+
+    def kalman_model(self) -> KalmanModel:
+        """The filter of JPTrack's tracks: ``[cx, cy, w, h]`` with the ``kf_*`` floors."""
+        return KalmanModel(
+            min_std_px=self.kf_min_std_px,
+            min_centre_process_std_px=self.kf_centre_process_floor_px,
+            min_birth_centre_velocity_std_px=self.kf_birth_velocity_floor_px,
+        )
 
     def weights(self) -> JcmaWeights:
         return JcmaWeights(
@@ -129,6 +150,7 @@ class JPTrack(MultiStageTracker):
             history_len=c.history_len,
             image_size=c.image_size,
             low_score_birth_frames=c.low_score_birth_frames,
+            kalman=c.kalman_model(),
         )
         #: Number of PMR mixtures fitted since construction (the bench reports it).
         self.pmr_fits = 0
