@@ -23,7 +23,8 @@ Every tracker sees the same detection streams, from several independent **profil
 
 TUNING profiles are where tracker defaults may be tuned; HELD OUT ones never are. Trackers get
 ``t = (frame - 1) / fps`` at each profile's own frame rate. In the same process and on the same
-streams run our ByteTrack, JPTrack (JCMA only), JPTrack (JCMA + PMR) and, when boxmot is installed
+streams run our ByteTrack (the original paper's thresholds, and boxmot's defaults for the
+faithfulness line), JPTrack (JCMA only), JPTrack (JCMA + PMR) and, when boxmot is installed
 (benchmark-only dependency, ``make bench-peers``), boxmot's ByteTrack with IoU and with DIoU
 association, OC-SORT and BoT-SORT without re-identification (no appearance model, no weights; its
 camera-motion compensation is off too, as it needs images). Peers keep their defaults except that
@@ -54,6 +55,8 @@ DEFAULT_HALMSTAD = None  # resolved by gldt_core.paths.halmstad_root() when used
 #: on ``val``'s clips; ``val_b``'s are held out.
 REAL_PROFILES = {"real-detector-val": "val", "real-detector-val_b": "val_b"}
 OURS_BYTETRACK, JPTRACK_FULL, DIOU_PEER = "ByteTrack (ours)", "JPTrack JCMA+PMR", "boxmot ByteTrack (DIoU)"
+#: Our ByteTrack at boxmot's defaults, and boxmot's ByteTrack (IoU): the faithfulness check.
+OURS_AT_BOXMOT, IOU_PEER = "ByteTrack (ours, boxmot's)", "boxmot ByteTrack (IoU)"
 #: Trackers whose identity switches are broken down by event.
 EVENT_TRACKERS = (JPTRACK_FULL, DIOU_PEER)
 
@@ -169,7 +172,7 @@ def _peer_factories(no_peers: bool) -> tuple[dict, str]:
         return BoxmotPeer(BoxBotSort(use_embeddings=False, use_cmc=False, frame_rate=round(fps)), size)
 
     factories = {
-        "boxmot ByteTrack (IoU)": lambda size, fps: BoxmotPeer(BoxByteTrack(frame_rate=round(fps)), size),
+        IOU_PEER: lambda size, fps: BoxmotPeer(BoxByteTrack(frame_rate=round(fps)), size),
         DIOU_PEER: lambda size, fps: BoxmotPeer(BoxByteTrack(asso_func="diou", frame_rate=round(fps)), size),
         "boxmot OC-SORT": lambda size, fps: BoxmotPeer(BoxOcSort(max_age=_frames(fps, 30)), size),
         "boxmot BoT-SORT (no ReID)": botsort,
@@ -185,7 +188,8 @@ def _our_factories() -> dict:
     from gldt_core.track import ByteTrack, ByteTrackConfig, JPTrack, JPTrackConfig
 
     return {
-        OURS_BYTETRACK: lambda size, fps: ByteTrack(ByteTrackConfig(image_size=size)),
+        OURS_BYTETRACK: lambda size, fps: ByteTrack(ByteTrackConfig(image_size=size, frame_rate=round(fps))),
+        OURS_AT_BOXMOT: lambda size, fps: ByteTrack(ByteTrackConfig.boxmot(image_size=size, frame_rate=round(fps))),
         "JPTrack JCMA": lambda size, fps: JPTrack(JPTrackConfig(use_pmr=False, image_size=size)),
         JPTRACK_FULL: lambda size, fps: JPTrack(JPTrackConfig(image_size=size)),
     }
@@ -450,6 +454,15 @@ def target_lines(results: dict, worst: dict, speed: dict) -> list[str]:
             f"(<= 0.50: {_ok(ratio <= 0.5)}), IDF1 {100 * b['IDF1']:.2f} -> {100 * j['IDF1']:.2f} = "
             f"{gain:+.2f} points (>= +10: {_ok(gain >= 10)})"
         )
+        if IOU_PEER in per and OURS_AT_BOXMOT in per:
+            mine, ref = per[OURS_AT_BOXMOT], per[IOU_PEER]
+            tolerance = max(1.0, 0.05 * ref["IDSW"])
+            faithful = abs(mine["IDSW"] - ref["IDSW"]) <= tolerance and abs(mine["MOTA"] - ref["MOTA"]) <= 0.005
+            lines.append(
+                f"[{profile}] our ByteTrack at boxmot's defaults vs boxmot ByteTrack: IDSW {int(mine['IDSW'])} vs "
+                f"{int(ref['IDSW'])}, MOTA {100 * mine['MOTA']:.2f} vs {100 * ref['MOTA']:.2f} "
+                f"(within 5 % and 0.5: {_ok(faithful)})"
+            )
     if DIOU_PEER in worst:
         for metric in ("HOTA", "IDF1"):
             mine, peer = worst[JPTRACK_FULL][f"all_{metric}"], worst[DIOU_PEER][f"all_{metric}"]

@@ -64,10 +64,13 @@ class JPTrackConfig:
 
     use_jcma: bool = True
     use_pmr: bool = True
-    # Score split (ByteTrack's values; the paper names t_h and t_l without values).
-    t_h: float = 0.5
+    # Score split: the paper names t_h and t_l without values. t_h and the new-track threshold are
+    # chosen by `gldt bench tracking-tune` on the tuning profiles (by the worst of them, against
+    # ByteTrack+DIoU); ByteTrack's 0.5 / 0.6 left the real detector's drones scored 0.4-0.6 without
+    # a track. The GL-DT system sets its own, calibrated values (system.config).
+    t_h: float = 0.4
     t_l: float = 0.1
-    new_track_thresh: float = 0.6
+    new_track_thresh: float = 0.4
     # JCMA weights (Table I): w1..w4 of eq. 9, beta1..beta3 of eq. 13.
     w1: float = 0.3
     w2: float = 0.3
