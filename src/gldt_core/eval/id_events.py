@@ -85,6 +85,8 @@ from gldt_core.eval.mot_metrics import (
     _as_rows,
     _group_by_frame,
     box_iou_xywh,
+    clear_matches,
+    frame_view,
 )
 
 SWAP = "swap onto another target"
@@ -320,40 +322,20 @@ def classify_id_switches(
     prev_step: dict[int, int] = {}
     raw_events: list[tuple[int, int, int, int, int]] = []  # frame, gt, prev, new, prev's last match
     for frame, g, p in zip(present.tolist(), _group_by_frame(gt, present), _group_by_frame(pred, present)):
-        g_ids_all = g[:, 1].astype(np.int64)
-        p_ids_all = p[:, 1].astype(np.int64)
-        if len(np.unique(p_ids_all)) != len(p_ids_all):
-            raise ValueError(f"predictions: frame {frame} reports the same track id twice")
-        if len(np.unique(g_ids_all)) != len(g_ids_all):
-            raise ValueError(f"ground truth: frame {frame} has the same object id twice")
-        if np.any(p_ids_all < 0):
-            raise ValueError(f"predictions: frame {frame} has a negative track id")
-        similarity = box_iou_xywh(g[:, 2:6], p[:, 2:6])
-        classes = g[:, 7].astype(np.int64)
-        is_distractor = np.isin(classes, distractors)
-        keep_pred = np.ones(len(p), dtype=bool)
-        if len(g) > 0 and len(p) > 0 and len(distractors) > 0:
-            matching = similarity.copy()
-            matching[matching < 0.5 - EPS] = 0
-            rows, cols = linear_sum_assignment(-matching)
-            ok = matching[rows, cols] > 0 + EPS
-            rows, cols = rows[ok], cols[ok]
-            keep_pred[cols[is_distractor[rows]]] = False
-        keep_gt = (g[:, 6] != 0) & (np.isin(classes, targets) | (classes == -1))
+        view = frame_view(frame, g, p, targets, distractors)
+        g_ids_all, p_ids_all = view.gt_ids, view.pred_ids
+        keep_gt, keep_pred, is_distractor = view.keep_gt, view.keep_pred, view.is_distractor
         g_ids = g_ids_all[keep_gt]
         p_ids = p_ids_all[keep_pred]
-        sim = similarity[keep_gt][:, keep_pred]
+        sim = view.similarity[keep_gt][:, keep_pred]
         for gid in g_ids.tolist():
             gt_frames.setdefault(gid, []).append(frame)
 
         matched: dict[int, int] = {}  # pred id -> gt id
         if len(g_ids) and len(p_ids):
             prev_step_arr = np.array([prev_step.get(i, -1) for i in g_ids.tolist()], dtype=np.int64)
-            score = 1000 * (p_ids[np.newaxis, :] == prev_step_arr[:, np.newaxis]) + sim
-            score[sim < iou_threshold - EPS] = 0
-            rows, cols = linear_sum_assignment(-score)
-            ok = score[rows, cols] > 0 + EPS
-            pairs = list(zip(g_ids[rows[ok]].tolist(), p_ids[cols[ok]].tolist()))
+            rows, cols = clear_matches(g_ids, p_ids, prev_step_arr, sim, iou_threshold)
+            pairs = list(zip(g_ids[rows].tolist(), p_ids[cols].tolist()))
             for gid, pid in pairs:
                 if gid in prev_id and prev_id[gid] != pid:
                     raw_events.append((frame, gid, prev_id[gid], pid, prev_frame[gid]))

@@ -152,6 +152,60 @@ def _group_by_frame(table: np.ndarray, frames: np.ndarray) -> list[np.ndarray]:
     return [table[starts[i] : starts[i + 1]] for i in range(len(frames))]
 
 
+@dataclass(frozen=True)
+class FrameView:
+    """One frame as the metrics see it: ids, the IoU of every (gt, prediction) pair, the ground
+    truth that counts (a target class, not flagged 0) and the predictions that count (not matched
+    at IoU 0.5 to a distractor, as TrackEval's MOT preprocessing removes them)."""
+
+    gt_ids: np.ndarray
+    pred_ids: np.ndarray
+    similarity: np.ndarray
+    keep_gt: np.ndarray
+    keep_pred: np.ndarray
+    is_distractor: np.ndarray
+
+
+def frame_view(frame: int, g: np.ndarray, p: np.ndarray, targets: np.ndarray, distractors: np.ndarray) -> FrameView:
+    """The :class:`FrameView` of one frame's gt rows ``g`` and prediction rows ``p``; one line
+    naming the frame when its ids are not usable."""
+    g_ids = g[:, 1].astype(np.int64)
+    p_ids = p[:, 1].astype(np.int64)
+    if len(np.unique(p_ids)) != len(p_ids):
+        raise ValueError(f"predictions: frame {frame} reports the same track id twice")
+    if len(np.unique(g_ids)) != len(g_ids):
+        raise ValueError(f"ground truth: frame {frame} has the same object id twice")
+    if np.any(p_ids < 0):
+        raise ValueError(f"predictions: frame {frame} has a negative track id")
+    similarity = box_iou_xywh(g[:, 2:6], p[:, 2:6])
+    classes = g[:, 7].astype(np.int64)
+    is_distractor = np.isin(classes, distractors)
+    keep_pred = np.ones(len(p), dtype=bool)
+    if len(g) > 0 and len(p) > 0 and len(distractors) > 0:
+        matching = similarity.copy()
+        matching[matching < 0.5 - EPS] = 0
+        rows, cols = linear_sum_assignment(-matching)
+        matched = matching[rows, cols] > 0 + EPS
+        rows, cols = rows[matched], cols[matched]
+        keep_pred[cols[is_distractor[rows]]] = False
+    keep_gt = (g[:, 6] != 0) & (np.isin(classes, targets) | (classes == -1))
+    return FrameView(g_ids, p_ids, similarity, keep_gt, keep_pred, is_distractor)
+
+
+def clear_matches(
+    gt_ids: np.ndarray, pred_ids: np.ndarray, previous: np.ndarray, similarity: np.ndarray, threshold: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """CLEAR's matching of one frame (TrackEval): rows into ``gt_ids`` and columns into
+    ``pred_ids`` of the matched pairs. ``previous`` holds each gt id's prediction id matched in
+    the last frame with a match (anything else where none), which a pair keeps whenever its IoU
+    passes ``threshold``."""
+    score = 1000 * (pred_ids[np.newaxis, :] == previous[:, np.newaxis]) + similarity
+    score[similarity < threshold - EPS] = 0
+    rows, cols = linear_sum_assignment(-score)
+    ok = score[rows, cols] > 0 + EPS
+    return rows[ok], cols[ok]
+
+
 def _preprocess(
     gt: np.ndarray,
     pred: np.ndarray,
@@ -178,29 +232,10 @@ def _preprocess(
     pred_ids_t: list[np.ndarray] = []
     sims_t: list[np.ndarray] = []
     for frame, g, p in zip(present.tolist(), gt_frames, pred_frames):
-        g_ids = g[:, 1].astype(np.int64)
-        p_ids = p[:, 1].astype(np.int64)
-        if len(np.unique(p_ids)) != len(p_ids):
-            raise ValueError(f"predictions: frame {frame} reports the same track id twice")
-        if len(np.unique(g_ids)) != len(g_ids):
-            raise ValueError(f"ground truth: frame {frame} has the same object id twice")
-        if np.any(p_ids < 0):
-            raise ValueError(f"predictions: frame {frame} has a negative track id")
-        similarity = box_iou_xywh(g[:, 2:6], p[:, 2:6])
-        classes = g[:, 7].astype(np.int64)
-        keep_pred = np.ones(len(p), dtype=bool)
-        if len(g) > 0 and len(p) > 0 and len(distractors) > 0:
-            matching = similarity.copy()
-            matching[matching < 0.5 - EPS] = 0
-            rows, cols = linear_sum_assignment(-matching)
-            matched = matching[rows, cols] > 0 + EPS
-            rows, cols = rows[matched], cols[matched]
-            keep_pred[cols[np.isin(classes[rows], distractors)]] = False
-        is_target = np.isin(classes, targets) | (classes == -1)
-        keep_gt = (g[:, 6] != 0) & is_target
-        gt_ids_t.append(g_ids[keep_gt])
-        pred_ids_t.append(p_ids[keep_pred])
-        sims_t.append(similarity[keep_gt][:, keep_pred])
+        view = frame_view(frame, g, p, targets, distractors)
+        gt_ids_t.append(view.gt_ids[view.keep_gt])
+        pred_ids_t.append(view.pred_ids[view.keep_pred])
+        sims_t.append(view.similarity[view.keep_gt][:, view.keep_pred])
 
     def relabel(ids_per_frame: list[np.ndarray]) -> int:
         present = [ids for ids in ids_per_frame if len(ids)]
@@ -314,11 +349,7 @@ def _clear(data: _Frames, num_frames: int, threshold: float) -> dict[str, float]
             res["CLR_FN"] += len(g_ids)
             gt_count[g_ids] += 1
             continue
-        score = 1000 * (p_ids[np.newaxis, :] == prev_step_id[g_ids[:, np.newaxis]]) + sim
-        score[sim < threshold - EPS] = 0
-        rows, cols = linear_sum_assignment(-score)
-        ok = score[rows, cols] > 0 + EPS
-        rows, cols = rows[ok], cols[ok]
+        rows, cols = clear_matches(g_ids, p_ids, prev_step_id[g_ids], sim, threshold)
         matched_gt = g_ids[rows]
         matched_pred = p_ids[cols]
         prev_matched = prev_id[matched_gt]
