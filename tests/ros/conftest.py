@@ -6,12 +6,28 @@ from __future__ import annotations
 import argparse
 import subprocess
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
 
 ProcessMap = dict[str, subprocess.Popen[bytes]]
+
+
+@pytest.fixture
+def context() -> Iterator[Any]:
+    """An rclpy context on a DDS domain of its own (``support.isolated_ros_env``)."""
+    import rclpy
+    from rclpy.context import Context
+
+    from support import isolated_ros_env
+
+    context = Context()
+    rclpy.init(context=context, domain_id=int(isolated_ros_env()["ROS_DOMAIN_ID"]))
+    try:
+        yield context
+    finally:
+        rclpy.shutdown(context=context)
 
 
 @pytest.fixture

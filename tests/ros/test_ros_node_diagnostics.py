@@ -4,28 +4,15 @@ condition (``GldtNode.set_warning``), published at once."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 import pytest
 
-from support import isolated_ros_env
-
 rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from rclpy.context import Context  # noqa: E402
-
-
-@pytest.fixture
-def context() -> Iterator[Context]:
-    context = Context()
-    rclpy.init(context=context, domain_id=int(isolated_ros_env()["ROS_DOMAIN_ID"]))
-    try:
-        yield context
-    finally:
-        rclpy.shutdown(context=context)
 
 
 def values(status: DiagnosticStatus) -> dict[str, str]:

@@ -31,17 +31,6 @@ WIDTH, HEIGHT = 320, 240
 STAMPS_NS = [500_000_000 + 50_000_000 * i for i in range(6)]
 
 
-@pytest.fixture
-def context() -> Iterator[Context]:
-    """An rclpy context on a DDS domain of its own."""
-    context = Context()
-    rclpy.init(context=context, domain_id=int(isolated_ros_env()["ROS_DOMAIN_ID"]))
-    try:
-        yield context
-    finally:
-        rclpy.shutdown(context=context)
-
-
 def sky(index: int) -> np.ndarray:
     frame = np.full((HEIGHT, WIDTH, 3), 190, np.uint8)
     frame[100:108, 40 + 10 * index : 52 + 10 * index] = 30
