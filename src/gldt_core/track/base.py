@@ -45,7 +45,7 @@ from gldt_core.track.boxes import (
     validate_time,
 )
 from gldt_core.track.fastpath import on_floats
-from gldt_core.track.kalman import ConstantVelocityKalman, KalmanModel, predicted_many
+from gldt_core.track.kalman import KalmanModel, predicted_many
 from gldt_core.track.state import (
     Track,
     TrackState,
@@ -277,9 +277,19 @@ class MultiStageTracker:
         self, dets: np.ndarray, d: int, t: float, state: TrackState, rel: list[tuple[float, float]]
     ) -> None:
         """Append a new track on detection ``d``, with the next id and this tracker's filter."""
-        tr = Track(self._next_id, dets[d, :4], dets[d, 4], t, state, self._ref_fps, self._history_len, rel[d])
-        tr.kf = ConstantVelocityKalman(tr.kf.mean[:4].copy(), self._ref_fps, self._kalman)
-        self._tracks.append(tr)
+        self._tracks.append(
+            Track(
+                self._next_id,
+                dets[d, :4],
+                dets[d, 4],
+                t,
+                state,
+                self._ref_fps,
+                self._history_len,
+                rel[d],
+                self._kalman,
+            )
+        )
         self._next_id += 1
 
     def _relative_positions(

@@ -9,7 +9,7 @@ import numpy as np
 
 from gldt_core.track.boxes import centre_size, corners
 from gldt_core.track.fastpath import on_floats
-from gldt_core.track.kalman import ConstantVelocityKalman, predict_many, update_many
+from gldt_core.track.kalman import ConstantVelocityKalman, KalmanModel, predict_many, update_many
 from gldt_core.track.pmr import PmrModel
 
 
@@ -44,12 +44,13 @@ class Track:
         ref_fps: float,
         history_len: int,
         rel_xy: tuple[float, float],
+        kalman: KalmanModel | None = None,
     ) -> None:
         self.track_id = int(track_id)
         self.state = state
         x1, y1, x2, y2 = np.asarray(box_xyxy, dtype=np.float64)[:4].tolist()
         cx, cy, w, h = centre_size(x1, y1, x2, y2)
-        self.kf = ConstantVelocityKalman(np.array([cx, cy, w, h]), ref_fps)
+        self.kf = ConstantVelocityKalman(np.array([cx, cy, w, h]), ref_fps, kalman)
         self.kf_t = float(t)
         self.score = float(score)
         self.hits = 1
