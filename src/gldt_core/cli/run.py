@@ -5,8 +5,14 @@ Example::
     gldt run --video clip.mp4 --out tracks.txt --render overlay.mp4 --plot run.png
 
 Prints one summary line (frames, FPS, share of frames on the global detector) and where the
-time went. Bad input (missing file, bad config, unreadable model) fails before the first frame
-with one line.
+time went. Bad input (missing file, bad config, unreadable model, an output path that cannot be
+written: a folder, a read-only place) fails before the first frame with one line and exit status 2.
+
+Damaged input does not end a run quietly: an image or a video frame that cannot be decoded is
+skipped with a warning (the tracker coasts over the gap), reading goes on past it, and a video that
+ends before its declared frame count is reported. Everything read is tracked and written as usual;
+the summary says how many frames were lost and the exit status is then 3, so a script can tell a
+complete run (0) from one with lost frames (3) and from bad input (2).
 """
 
 from __future__ import annotations
@@ -21,12 +27,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="detect and track drones in a video / image folder / ROS 2 bag",
         description="Run the GL-DT system (GD/LD scheduler + tracker) over a recording and write "
         "MOTChallenge tracks (frame,id,x,y,w,h,score,-1,-1,-1).",
+        epilog="Exit status: 0 every frame was read; 2 bad input (nothing is processed); 3 the run "
+        "finished and wrote its outputs but frames of the input could not be read (skipped or "
+        "missing at the end of a video); the summary says how many.",
     )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument(
         "--video", metavar="IN", help="video file (mp4, avi, ...) or a synthetic scene 'synth:seed=3,frames=90'"
     )
-    source.add_argument("--frames", metavar="DIR", help="folder of images or a MOTChallenge sequence folder")
+    source.add_argument(
+        "--frames",
+        metavar="DIR",
+        help="folder of images (jpg/png/bmp, frames in name order) or a MOTChallenge sequence folder",
+    )
     source.add_argument("--bag", metavar="BAG", help="ROS 2 bag (MCAP) with an image topic")
     parser.add_argument("--out", metavar="TRACKS.txt", required=True, help="MOTChallenge tracks to write")
     parser.add_argument("--render", metavar="OUT.mp4", help="also write an overlay video (boxes, ids, mode, ROIs)")
@@ -73,6 +86,12 @@ def handle_run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"input not found: {input_path}")
     if args.gt is not None and not Path(args.gt).is_file():
         raise FileNotFoundError(f"ground truth not found: {args.gt}")
+    from gldt_core.cli._paths import check_output_path, remove_quietly
+
+    out_path = check_output_path(args.out, "--out")
+    plot_path = check_output_path(args.plot, "--plot") if args.plot else None
+    if args.render:
+        check_output_path(args.render, "--render")
 
     config = load_config(args.config)
     system = GLDTSystem(config)  # loads the models now: a bad model file fails here
@@ -125,15 +144,26 @@ def handle_run(args: argparse.Namespace) -> int:
 
     if result.frames == 0:
         raise CliError(f"{input_path}: no frames could be read")
-    write_mot(args.out, result.rows)
-    if args.plot:
-        save_run_plot(args.plot, result.modes, result.rows, result.frames, title=input_path.name)
+    lost = int(getattr(source, "lost_frames", 0) or 0)
+    try:
+        write_mot(out_path, result.rows)  # removes its temporary file when writing fails
+    except OSError as error:
+        raise CliError(f"--out {args.out}: cannot write the tracks ({error.strerror or error})") from None
+    plot_error = None
+    if plot_path is not None:
+        try:
+            save_run_plot(plot_path, result.modes, result.rows, result.frames, title=input_path.name)
+        except OSError as error:
+            # save_run_plot writes <stem>.part<suffix> and renames it; leave no part file behind.
+            remove_quietly(plot_path.with_name(plot_path.stem + ".part" + plot_path.suffix))
+            plot_error = f"--plot {args.plot}: cannot write the plot ({error.strerror or error}); tracks were written"
 
     track_ids = len(np.unique(result.rows[:, 1])) if len(result.rows) else 0
     print(
         f"gldt run: {result.frames} frames, {result.fps:.1f} FPS, GD on {result.global_share:.0%} of frames, "
         f"{track_ids} track ids -> {args.out}"
         + (f" (re-initialised {result.reinitialisations}x)" if result.reinitialisations else "")
+        + (f"; {lost} frame{'s' if lost != 1 else ''} of the input could not be read (exit status 3)" if lost else "")
     )
     print("gldt run: time per stage: " + system.timer.format(result.frames))
     if result.prefetch_ms is not None:
@@ -152,4 +182,6 @@ def handle_run(args: argparse.Namespace) -> int:
             f"gldt run: MOTA {100 * metrics['MOTA']:.1f}  IDF1 {100 * metrics['IDF1']:.1f}  "
             f"HOTA {100 * metrics['HOTA']:.1f}  IDSW {int(metrics['IDSW'])}"
         )
-    return 0
+    if plot_error is not None:
+        raise CliError(plot_error)
+    return 3 if lost else 0

@@ -46,6 +46,9 @@ def run_track(args: argparse.Namespace) -> int:
 
     if not math.isfinite(args.fps) or args.fps <= 0:
         raise ValueError(f"--fps must be a positive number, got {args.fps}")
+    if min(args.image_size) < 1:
+        width, height = args.image_size
+        raise ValueError(f"--image-size must be two positive integers W H, got {width} {height}")
     rows = read_mot(args.dets)
     size = (int(args.image_size[0]), int(args.image_size[1]))
     tracker: ByteTrack | JPTrack

@@ -41,6 +41,9 @@ class FrameSource(ABC):
     size: tuple[int, int]
     camera_matrix: np.ndarray | None = None
     name: str = ""
+    #: Frames the last pass could not read (skipped with a warning, or missing at the end of a
+    #: video that declared more); sources that can lose frames update it while they are read.
+    lost_frames: int = 0
 
     @abstractmethod
     def __iter__(self) -> Iterator[Frame]:

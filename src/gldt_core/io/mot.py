@@ -12,6 +12,7 @@ a bad file never turns into a silently wrong result.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
 from collections.abc import Iterable
@@ -84,7 +85,8 @@ def format_mot_row(row: np.ndarray | list[float]) -> str:
 def write_mot(path: str | os.PathLike[str], rows: np.ndarray) -> None:
     """Write an ``(N, >=6)`` array as MOTChallenge lines (missing columns filled with -1).
 
-    The file is written to a temporary name and renamed, so a crash never leaves half a file.
+    The file is written to a temporary name and renamed, so a crash never leaves half a file; when
+    writing fails (``OSError``) the temporary file is removed before the error propagates.
     """
     path = Path(path)
     table = np.asarray(rows, dtype=np.float64)
@@ -98,10 +100,15 @@ def write_mot(path: str | os.PathLike[str], rows: np.ndarray) -> None:
         table = np.hstack([table, pad])
     path.parent.mkdir(parents=True, exist_ok=True)
     temporary = path.with_name(path.name + ".part")
-    with temporary.open("w", encoding="utf-8") as handle:
-        for row in table[:, :MOT_COLUMNS]:
-            handle.write(format_mot_row(row) + "\n")
-    os.replace(temporary, path)
+    try:
+        with temporary.open("w", encoding="utf-8") as handle:
+            for row in table[:, :MOT_COLUMNS]:
+                handle.write(format_mot_row(row) + "\n")
+        os.replace(temporary, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            temporary.unlink()
+        raise
 
 
 def xywh_to_xyxy(boxes: np.ndarray) -> np.ndarray:

@@ -1,8 +1,15 @@
-"""A MOTChallenge sequence folder: ``img1/`` frames, ``gt/gt.txt`` and ``seqinfo.ini``."""
+"""A MOTChallenge sequence folder (``img1/`` frames, ``gt/gt.txt`` and ``seqinfo.ini``) or a plain
+folder of images (``.jpg``/``.jpeg``/``.png``/``.bmp``, frames in the order of their names).
+
+An image that cannot be read is skipped with one warning line naming the file: the frame keeps its
+number and time, so the tracker coasts over the gap, and :attr:`MotFolderSource.lost_frames`
+counts the skipped frames for the caller's summary.
+"""
 
 from __future__ import annotations
 
 import configparser
+import logging
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -12,6 +19,14 @@ import numpy as np
 from gldt_core.io.frame import Frame, FrameSource, empty_ground_truth, rows_by_frame
 
 IMAGE_EXTENSIONS = (".jpg", ".jpeg", ".png", ".bmp")
+
+_log = logging.getLogger(__name__)
+
+
+def image_files(folder: Path, extensions: tuple[str, ...] = IMAGE_EXTENSIONS) -> list[Path]:
+    """The image files directly in ``folder`` with one of ``extensions``, sorted by name."""
+    wanted = tuple(e.lower() for e in extensions)
+    return sorted(p for p in folder.iterdir() if p.suffix.lower() in wanted and p.is_file())
 
 
 class _CaseKeepingParser(configparser.ConfigParser):
@@ -57,10 +72,10 @@ def write_seqinfo(
 
 
 class MotFolderSource(FrameSource):
-    """Frames of a MOTChallenge folder; ground truth from ``gt/gt.txt`` or the ``gt`` argument."""
+    """Frames of a MOTChallenge folder, or of a plain folder of images (no ``seqinfo.ini`` nor
+    ``img1/``); ground truth from ``gt/gt.txt`` or the ``gt`` argument."""
 
     def __init__(self, path: str | os.PathLike[str], gt: str | os.PathLike[str] | None = None) -> None:
-        import cv2
 
         from gldt_core.io.mot import read_mot
 
@@ -70,14 +85,13 @@ class MotFolderSource(FrameSource):
         info = read_seqinfo(self.path / "seqinfo.ini")
         self.name = info.get("name", self.path.name)
         image_dir = self.path / info.get("imDir", "img1")
+        if not info and not image_dir.is_dir() and image_files(self.path):
+            image_dir = self.path  # a plain folder of images
         if not image_dir.is_dir():
             raise FileNotFoundError(f"{self.path}: no image folder {image_dir.name}/")
         extension = info.get("imExt")
-        self._images = sorted(
-            p
-            for p in image_dir.iterdir()
-            if p.suffix.lower() in ((extension.lower(),) if extension else IMAGE_EXTENSIONS)
-        )
+        self._images = image_files(image_dir, (extension,) if extension else IMAGE_EXTENSIONS)
+        self.lost_frames = 0
         if not self._images:
             raise ValueError(f"{image_dir}: no image files")
         if "seqLength" in info and int(info["seqLength"]) != len(self._images):
@@ -92,9 +106,9 @@ class MotFolderSource(FrameSource):
         if "imWidth" in info and "imHeight" in info:
             self.size = (int(info["imWidth"]), int(info["imHeight"]))
         else:
-            first = cv2.imread(str(self._images[0]), cv2.IMREAD_COLOR)
+            first = next((i for i in map(_read_image, self._images) if i is not None), None)
             if first is None:
-                raise ValueError(f"cannot read image {self._images[0]}")
+                raise ValueError(f"{image_dir}: none of its {len(self._images)} images can be read")
             self.size = (first.shape[1], first.shape[0])
         gt_path = Path(gt) if gt is not None else self.path / "gt" / "gt.txt"
         if gt is not None and not gt_path.is_file():
@@ -115,10 +129,24 @@ class MotFolderSource(FrameSource):
         return self._gt
 
     def __iter__(self) -> Iterator[Frame]:
-        import cv2
-
+        self.lost_frames = 0
         for index, image_path in enumerate(self._images):
-            image = cv2.imread(str(image_path), cv2.IMREAD_COLOR)
+            image = _read_image(image_path)
             if image is None:
-                raise ValueError(f"cannot read image {image_path}")
+                self.lost_frames += 1
+                _log.warning(
+                    "cannot read image %s (frame %d); skipped, the tracker coasts over it", image_path, index + 1
+                )
+                continue
             yield Frame(index, index / self.fps, image, self._by_frame.get(index, empty_ground_truth()))
+
+
+def _read_image(path: Path) -> np.ndarray | None:
+    """The image at ``path`` as HxWx3 BGR, or None when it cannot be read or decoded."""
+    import cv2
+
+    try:
+        image = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    except cv2.error:
+        return None
+    return image if image is not None and image.size else None

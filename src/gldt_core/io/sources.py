@@ -1,9 +1,11 @@
 """One way to read frames with timestamps and ground truth from every kind of source.
 
 :func:`open_source` takes a MOTChallenge folder (``img1/``, ``gt/gt.txt``, ``seqinfo.ini``), a
-video file with a MOT gt file (Halmstad clips: ``videos/X.mp4`` finds ``gt/X.txt``), a rosbag2
-folder or ``.mcap`` file, or ``synth:seed=N,frames=K``; each returns a :class:`FrameSource`
-yielding :class:`Frame` objects the same way.
+plain folder of images (frames in name order), a video file with a MOT gt file (Halmstad clips:
+``videos/X.mp4`` finds ``gt/X.txt``), a rosbag2 folder or ``.mcap`` file, or
+``synth:seed=N,frames=K``; each returns a :class:`FrameSource` yielding :class:`Frame` objects
+the same way. A frame that cannot be read is skipped with a warning (its number stays unused, so
+the tracker coasts over it); ``source.lost_frames`` counts them once the source was read.
 """
 
 from __future__ import annotations
@@ -17,7 +19,8 @@ __all__ = ["Frame", "FrameSource", "empty_ground_truth", "open_source", "source_
 
 
 def source_kind(path: str | os.PathLike[str]) -> str:
-    """``mot``, ``video``, ``bag`` or ``synth`` for a path; ValueError when it is none of them."""
+    """``mot``, ``images`` (a plain folder of images), ``video``, ``bag`` or ``synth`` for a path;
+    ValueError when it is none of them."""
     from gldt_core.io.video import VIDEO_EXTENSIONS
 
     text = str(path)
@@ -31,7 +34,14 @@ def source_kind(path: str | os.PathLike[str]) -> str:
             return "bag"
         if (candidate / "seqinfo.ini").is_file() or (candidate / "img1").is_dir():
             return "mot"
-        raise ValueError(f"{candidate}: neither a MOT folder (img1/, seqinfo.ini) nor a bag (metadata.yaml)")
+        from gldt_core.io.mot_folder import image_files
+
+        if image_files(candidate):
+            return "images"
+        raise ValueError(
+            f"{candidate}: neither a MOT folder (img1/, seqinfo.ini), a folder of images (jpg, png, bmp) "
+            "nor a bag (metadata.yaml)"
+        )
     if candidate.suffix.lower() == ".mcap":
         return "bag"
     if candidate.suffix.lower() in VIDEO_EXTENSIONS:
@@ -52,7 +62,7 @@ def open_source(path: str | os.PathLike[str], gt: str | os.PathLike[str] | None 
         from gldt_core.io.bag import BagSource
 
         return BagSource(path)
-    if kind == "mot":
+    if kind in ("mot", "images"):
         from gldt_core.io.mot_folder import MotFolderSource
 
         return MotFolderSource(path, gt)

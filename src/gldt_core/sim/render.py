@@ -4,7 +4,8 @@ Per frame: crop the precomputed canvas at the camera offset (ego-motion), draw e
 supersampled patch around it (anti-aliased, motion blurred, faded by cloud occlusion and haze),
 then apply exposure gain and sensor noise in one ``cv2.addWeighted`` pass with a shifted window of
 a cached noise field, and optionally JPEG round-trip. Nothing depends on earlier frames, so any
-frame can be rendered on its own and the same spec always gives the same bytes.
+frame can be rendered on its own and the same spec always gives the same bytes. Paths are kept for
+one shot at a time (:mod:`gldt_core.sim.scene_geometry`), so a scene's length costs no memory.
 """
 
 from __future__ import annotations
@@ -101,14 +102,15 @@ class SceneRenderer:
         """Frame ``frame`` and its MOT rows (K, 10), from one pass over the scene geometry."""
         spec = self.spec
         states = self.geometry.objects(frame)
+        shot, local = self.geometry.shot(frame)
         width, height = spec.size
         margin_x, margin_y = self.style.margin
-        offset_x, offset_y = (int(v) for v in self.geometry.camera[frame])
+        offset_x, offset_y = (int(v) for v in shot.camera[local])
         top, left = margin_y + offset_y, margin_x + offset_x
         image = self.canvas[top : top + height, left : left + width].copy()
         if draw_objects:
             for state in states:
-                self._draw(image, state)
+                self._draw(image, state, shot.camera)
         rng = spec.rng(STREAM_FRAME, frame)
         dx, dy = (int(v) for v in rng.integers(0, NOISE_PAD, size=2))
         noise = _noise_field(width, height)[dy : dy + height, dx : dx + width]
@@ -129,20 +131,21 @@ class SceneRenderer:
             yield self.render_with_truth(frame)
 
     # -- drawing -------------------------------------------------------------------------------
-    def _screen_velocity(self, state: ObjectState) -> np.ndarray:
-        """Image motion of the object during the frame (px/frame), ego-motion included."""
+    def _screen_velocity(self, state: ObjectState, camera: np.ndarray) -> np.ndarray:
+        """Image motion of the object during the frame (px/frame), ego-motion included; ``camera``
+        holds the offsets of the state's shot."""
         frame = state.frame
-        track, camera = state.track, self.geometry.camera
-        if self.spec.frames < 2:
+        track = state.track
+        if len(camera) < 2:
             return np.zeros(2)
         a, b = (frame - 1, frame) if frame > 0 else (0, 1)
         return (track.centre[b] - camera[b]) - (track.centre[a] - camera[a])
 
-    def _draw(self, image: np.ndarray, state: ObjectState) -> None:
+    def _draw(self, image: np.ndarray, state: ObjectState, camera: np.ndarray) -> None:
         track = state.track
         span = float(track.span[state.frame])
         model = track.model(state.frame)
-        velocity = self._screen_velocity(state)
+        velocity = self._screen_velocity(state, camera)
         blur = float(np.hypot(*velocity)) * self.style.blur_exposure
         pad = int(np.ceil(blur / 2)) + 2
         x0 = int(np.floor(state.box[0])) - pad
@@ -198,7 +201,7 @@ class SceneRenderer:
         if track.behind_terrain:
             # Hidden below the skyline, pixel by pixel (same rule as the ground's coverage).
             margin_x, margin_y = self.style.margin
-            offset_x, offset_y = self.geometry.camera[state.frame]
+            offset_x, offset_y = camera[state.frame]
             ridge = self.geometry.ridge
             columns = np.clip(np.arange(x0, x1) + offset_x + margin_x, 0, len(ridge) - 1)
             rows = np.arange(y0, y1, dtype=np.float64) + offset_y + margin_y

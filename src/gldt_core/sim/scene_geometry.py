@@ -2,6 +2,15 @@
 
 :class:`SceneGeometry` is shared by :func:`scene_ground_truth` (which stops here, so it is fast)
 and the renderer (which draws exactly these objects), which is how the two agree exactly.
+
+Paths are simulated for a whole *shot* at once (:mod:`gldt_core.sim.motion`), which costs memory
+and time in proportion to its length; a scene longer than :data:`SHOT_FRAMES` is a sequence of
+shots of the same sky, simulated one at a time when a frame of theirs is asked for, so reading a
+few frames of a scene of a billion frames costs what reading a 10-minute scene does. At each cut
+the camera and every object start over on new paths (drones keep their ids 1..targets, birds
+theirs). A scene of up to :data:`SHOT_FRAMES` frames is one shot, exactly as before shots existed,
+and the first shot of a longer scene is the scene of :data:`SHOT_FRAMES` frames with the same
+spec.
 """
 
 from __future__ import annotations
@@ -18,6 +27,13 @@ from gldt_core.sim.motion import Track, bird_tracks, camera_offsets, target_trac
 from gldt_core.sim.spec import BIRD_ID_BASE, CLASS_BIRD, CLASS_DRONE, SceneSpec, SpecExtras
 from gldt_core.sim.style import SceneStyle, scene_style
 
+#: Longest stretch of a scene simulated at once: 10 minutes at 30 fps (about a second to simulate
+#: and a few MB of paths). Longer scenes are cut into shots of this many frames.
+SHOT_FRAMES = 18_000
+
+#: Random stream key that derives the seed of a long scene's shot k >= 1 from the scene's seed.
+STREAM_SHOT = 90
+
 
 @dataclass
 class ObjectState:
@@ -26,7 +42,7 @@ class ObjectState:
     track_id: int
     class_id: int
     track: Track
-    frame: int
+    frame: int  # index into ``track``'s arrays: the frame within its shot (the scene's, for one shot)
     centre: np.ndarray  # view px (after ego-motion)
     rotation: np.ndarray  # (3, 3)
     box: np.ndarray  # unclipped x1, y1, x2, y2 in view px
@@ -34,21 +50,17 @@ class ObjectState:
     visibility: float  # (1 - occlusion) * unhidden-by-terrain fraction * fraction inside the view
 
 
-class SceneGeometry:
-    """Everything about a scene except pixels; cheap (no image buffers)."""
+class Shot:
+    """The paths of one shot: camera offsets (F, 2), drone and bird tracks over its F frames."""
 
-    def __init__(self, spec: SceneSpec) -> None:
-        self.spec = spec
-        self.style: SceneStyle = scene_style(spec)
-        self.clouds = cloud_field(spec, self.style)
-        self.canvas_wh = canvas_size(spec, self.style)
-        self.ridge, _ = ridge_profile(spec, self.style)
-        self.camera = camera_offsets(spec, self.style)
-        self.targets = target_tracks(spec, self.style)
-        self.birds = bird_tracks(spec, self.style)
+    def __init__(self, spec: SceneSpec, style: SceneStyle) -> None:
+        self.frames = spec.frames
+        self.camera = camera_offsets(spec, style)
+        self.targets = target_tracks(spec, style)
+        self.birds = bird_tracks(spec, style)
 
     @cached_property
-    def _target_boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
+    def target_boxes(self) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per target: rotations (F, 3, 3) and world boxes (F, 4)."""
         result = []
         for track in self.targets:
@@ -59,35 +71,93 @@ class SceneGeometry:
             result.append((rotations, boxes))
         return result
 
+
+class SceneGeometry:
+    """Everything about a scene except pixels; cheap (no image buffers), and its memory does not
+    grow with the scene's length (one shot of paths is kept at a time)."""
+
+    def __init__(self, spec: SceneSpec) -> None:
+        self.spec = spec
+        self.style: SceneStyle = scene_style(spec)
+        self.clouds = cloud_field(spec, self.style)
+        self.canvas_wh = canvas_size(spec, self.style)
+        self.ridge, _ = ridge_profile(spec, self.style)
+        self._shot: tuple[int, Shot] | None = None
+
+    def shot(self, frame: int) -> tuple[Shot, int]:
+        """The shot holding ``frame`` (0-based) and the frame's index within it."""
+        number, local = divmod(int(frame), SHOT_FRAMES)
+        if self._shot is None or self._shot[0] != number:
+            self._shot = (number, Shot(self._shot_spec(number), self.style))
+        return self._shot[1], local
+
+    def _shot_spec(self, number: int) -> SceneSpec:
+        """The spec whose paths shot ``number`` shows: the scene's own for a one-shot scene; for a
+        longer one, its length and (from the second shot on) a seed derived from the scene's."""
+        spec = self.spec
+        if spec.frames <= SHOT_FRAMES:
+            return spec
+        length = min(SHOT_FRAMES, spec.frames - number * SHOT_FRAMES)
+        if number == 0:
+            return spec.with_(frames=length)
+        seed = int(spec.rng(STREAM_SHOT, number).integers(0, 2**31))
+        return spec.with_(frames=length, seed=seed)
+
+    @property
+    def camera(self) -> np.ndarray:
+        """Camera offsets (F, 2) of the first shot (the whole scene unless it is longer than
+        :data:`SHOT_FRAMES`)."""
+        return self.shot(0)[0].camera
+
+    @property
+    def targets(self) -> list[Track]:
+        """Drone tracks of the first shot (see :attr:`camera`)."""
+        return self.shot(0)[0].targets
+
+    @property
+    def birds(self) -> list[Track]:
+        """Bird tracks of the first shot (see :attr:`camera`)."""
+        return self.shot(0)[0].birds
+
     def objects(self, frame: int) -> list[ObjectState]:
-        """Objects whose box overlaps the view in ``frame`` (0-based), drones then birds."""
+        """Objects whose box overlaps the view in ``frame`` (0-based), drones then birds; each
+        state's ``frame`` is its index within the shot (:meth:`shot`)."""
         spec = self.spec
         if not 0 <= frame < spec.frames:
             raise ValueError(f"frame {frame} out of range 0..{spec.frames - 1}")
-        shift = np.tile(self.camera[frame].astype(float), 2)
+        shot, local = self.shot(frame)
+        shift = np.tile(shot.camera[local].astype(float), 2)
         states: list[ObjectState] = []
-        for index, track in enumerate(self.targets):
-            rotations, boxes = self._target_boxes[index]
+        for index, track in enumerate(shot.targets):
+            rotations, boxes = shot.target_boxes[index]
             occlusion = 0.0
             if track.behind_clouds:
-                canvas_xy = track.centre[frame] + np.array(self.style.margin, float)
+                canvas_xy = track.centre[local] + np.array(self.style.margin, float)
                 occlusion = float(sample_cloud(self.clouds, self.canvas_wh, canvas_xy[0], canvas_xy[1]))
             terrain = 1.0
             if track.behind_terrain:
-                canvas_box = boxes[frame] + np.tile(np.array(self.style.margin, float), 2)
+                canvas_box = boxes[local] + np.tile(np.array(self.style.margin, float), 2)
                 terrain = terrain_visibility(self.ridge, canvas_box)
             state = self._state(
-                index + 1, CLASS_DRONE, track, frame, rotations[frame], boxes[frame] - shift, occlusion, terrain
+                index + 1,
+                CLASS_DRONE,
+                track,
+                local,
+                shot.camera,
+                rotations[local],
+                boxes[local] - shift,
+                occlusion,
+                terrain,
             )
             if state is not None:
                 states.append(state)
-        for index, track in enumerate(self.birds):
-            model = track.model(frame)
+        for index, track in enumerate(shot.birds):
+            model = track.model(local)
             rotation = rotation_matrices(
-                track.yaw[frame], track.pitch[frame], track.roll[frame], track.bank[frame], track.elevation[frame]
+                track.yaw[local], track.pitch[local], track.roll[local], track.bank[local], track.elevation[local]
             )
-            box = box_extents(model, rotation) * track.span[frame] + np.tile(track.centre[frame], 2)
-            state = self._state(BIRD_ID_BASE + index, CLASS_BIRD, track, frame, rotation, box - shift, 0.0)
+            box = box_extents(model, rotation) * track.span[local] + np.tile(track.centre[local], 2)
+            state = self._state(BIRD_ID_BASE + index, CLASS_BIRD, track, local, shot.camera, rotation, box - shift, 0.0)
             if state is not None:
                 states.append(state)
         return states
@@ -98,6 +168,7 @@ class SceneGeometry:
         class_id: int,
         track: Track,
         frame: int,
+        camera: np.ndarray,
         rotation: np.ndarray,
         box: np.ndarray,
         occlusion: float,
@@ -109,7 +180,7 @@ class SceneGeometry:
             return None
         area = max((box[2] - box[0]) * (box[3] - box[1]), 1e-9)
         inside = (clipped[2] - clipped[0]) * (clipped[3] - clipped[1]) / area
-        centre = track.centre[frame] - self.camera[frame]
+        centre = track.centre[frame] - camera[frame]
         return ObjectState(
             track_id, class_id, track, frame, centre, rotation, box, occlusion, (1.0 - occlusion) * terrain * inside
         )

@@ -194,6 +194,56 @@ def _checked(section: Mapping[str, Any] | None, allowed: Mapping[str, type], whe
     return out
 
 
+def _checked_tracker_parameters(section: Mapping[str, Any], tracker: str, where: str) -> dict[str, Any]:
+    """Validate parameter overrides for ``tracker`` against its config dataclass: known fields, and
+    each value of its field's type (the type of the field's default; ints accepted for floats,
+    YAML lists for tuples). Without this a wrong type fails deep inside the tracker
+    ("'<=' not supported ...") instead of naming the key."""
+    from gldt_core import track
+
+    if tracker not in TRACKER_NAMES:
+        return dict(section)  # TrackerSettings names the bad tracker
+    config_class = track.JPTrackConfig if tracker == "jptrack" else track.ByteTrackConfig
+    defaults = {f.name: getattr(config_class(), f.name) for f in dataclasses.fields(config_class)}
+    out: dict[str, Any] = {}
+    for key, value in section.items():
+        if key not in defaults:
+            raise ValueError(f"{where}.{key}: unknown {tracker} parameter (known: {', '.join(sorted(defaults))})")
+        out[key] = _typed_like(value, defaults[key], f"{where}.{key}")
+    return out
+
+
+def _typed_like(value: Any, default: Any, where: str) -> Any:
+    """``value`` checked (and converted) to the type of ``default``; ValueError naming ``where``."""
+    shown = "null" if value is None else repr(value)
+    if isinstance(default, bool):
+        if isinstance(value, bool):
+            return value
+        raise ValueError(f"{where}: expected bool (true/false), got {shown}")
+    if isinstance(default, int):
+        if isinstance(value, int) and not isinstance(value, bool):
+            return value
+        raise ValueError(f"{where}: expected int, got {shown}")
+    if isinstance(default, float):
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value):
+            return float(value)
+        raise ValueError(f"{where}: expected float, got {shown}")
+    if isinstance(default, str):
+        if isinstance(value, str):
+            return value
+        raise ValueError(f"{where}: expected str, got {shown}")
+    if isinstance(default, tuple):
+        kinds = "/".join(sorted({type(v).__name__ for v in default}))
+        expected = f"a list of {len(default)} positive {kinds}s"
+        if not isinstance(value, (list, tuple)) or len(value) != len(default):
+            raise ValueError(f"{where}: expected {expected}, got {shown}")
+        items = tuple(_typed_like(v, d, where) for v, d in zip(value, default))
+        if any(v <= 0 for v in items):
+            raise ValueError(f"{where}: expected {expected}, got {shown}")
+        return items
+    return value
+
+
 def config_from_dict(data: Mapping[str, Any] | None, source: str = "config") -> SystemConfig:
     """Build a :class:`SystemConfig` from a parsed YAML mapping; errors name ``source`` and key."""
     data = data or {}
@@ -222,6 +272,10 @@ def config_from_dict(data: Mapping[str, Any] | None, source: str = "config") -> 
         # null is meaningful for these keys (shipped model / every class), so it is kept.
         keep_null = ("global_model", "local_model", "score_threshold", "classes", "second_stage", "nested_threshold")
         detector = DetectorSettings(**{k: v for k, v in det.items() if v is not None or k in keep_null})
+        for section in ("jptrack", "bytetrack", "params"):
+            if trk.get(section) is not None:
+                name = section if section != "params" else trk.get("name") or TrackerSettings.name
+                trk[section] = _checked_tracker_parameters(trk[section], name, f"{source}: tracker.{section}")
         tracker = TrackerSettings(**{k: v for k, v in trk.items() if v is not None})
         lost = data.get("track_lost_frames")
         return SystemConfig(scheduler=scheduler, detector=detector, tracker=tracker, track_lost_frames=lost)
