@@ -68,6 +68,14 @@ def test_track_image_size_must_be_positive(tmp_path: Path, capsys: pytest.Captur
     assert not out.exists()
 
 
+def test_track_out_folder_fails_before_tracking(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    dets = tmp_path / "det.txt"
+    dets.write_text("1,-1,10,10,5,5,0.9\n")
+    code, _, err = run_cli(["track", "--dets", str(dets), "--out", str(tmp_path)], capsys)
+    assert code == 2
+    assert "--out" in error_line(err) and "is a folder" in err
+
+
 # ------------------------------------------------------------------- 2: tracker parameter types
 
 

@@ -49,6 +49,9 @@ def run_track(args: argparse.Namespace) -> int:
     if min(args.image_size) < 1:
         width, height = args.image_size
         raise ValueError(f"--image-size must be two positive integers W H, got {width} {height}")
+    from gldt_core.cli._paths import check_output_path
+
+    check_output_path(args.out, "--out")
     rows = read_mot(args.dets)
     size = (int(args.image_size[0]), int(args.image_size[1]))
     tracker: ByteTrack | JPTrack
