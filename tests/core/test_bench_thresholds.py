@@ -104,7 +104,7 @@ def test_each_pair_reaches_detector_and_tracker():
 
 
 def test_only_rows_published_as_drones_count_as_false_drones() -> None:
-    from gldt_core.bench.thresholds import drone_track_rows
+    from gldt_core.track.class_evidence import drone_track_rows
 
     rows = np.full((5, 10), -1.0)
     rows[:, 7] = [1, 2, 3, -1, 1]  # drone, bird, airplane, no evidence yet, drone

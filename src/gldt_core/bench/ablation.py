@@ -368,9 +368,9 @@ def _ratio_without_decode(ours: dict[str, Any], peer: dict[str, Any]) -> float |
 
 def false_drone_track_rate(sequences: list[CachedSequence], config: Any, detectors: tuple[Any, Any]) -> float:
     """Track rows published as drones per frame by GD+LD+JPTrack on clips without drones."""
-    from gldt_core.bench.thresholds import drone_track_rows
     from gldt_core.system.gldt_system import GLDTSystem, build_tracker
     from gldt_core.system.runner import run_frames
+    from gldt_core.track.class_evidence import drone_track_rows
 
     system_config = config.with_changes(local_enabled=True, tracker="jptrack")
     rows = frames = 0

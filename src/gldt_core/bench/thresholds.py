@@ -73,14 +73,6 @@ def config_for(base: Any, pair: ThresholdPair) -> Any:
     return dataclasses.replace(base, detector=detector, tracker=tracker)
 
 
-def drone_track_rows(rows: Any) -> int:
-    """Track rows published as drones: class column (MOT column 8) 1, or -1 where a track has no class evidence."""
-    import numpy as np
-
-    rows = np.asarray(rows, dtype=np.float64).reshape(-1, 10)
-    return int(np.isin(rows[:, 7], (1, -1)).sum())
-
-
 def sweep(
     drone_sequences: Sequence[Any],
     other_sequences: Sequence[Any],
@@ -96,6 +88,7 @@ def sweep(
     from gldt_core.eval.mot_metrics import evaluate_many
     from gldt_core.system.gldt_system import GLDTSystem, build_tracker
     from gldt_core.system.runner import run_frames
+    from gldt_core.track.class_evidence import drone_track_rows
 
     rows = []
     for pair in grid:

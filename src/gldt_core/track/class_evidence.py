@@ -99,3 +99,10 @@ class ClassEvidence:
             self._last_seen.pop(track_id, None)
             self._sums.pop(track_id, None)
             self._counts.pop(track_id, None)
+
+
+def drone_track_rows(rows: np.ndarray) -> int:
+    """MOT track rows ``(N, 10)`` published as drones: class (column 8) a drone, or unknown where a
+    track has no class evidence yet (a planner must treat those as drones)."""
+    table = np.asarray(rows, dtype=np.float64).reshape(-1, 10)
+    return int(np.isin(table[:, 7], (CLASS_IDS[0], UNKNOWN_CLASS_ID)).sum())
