@@ -189,3 +189,74 @@ def test_a_file_that_is_not_mcap_is_damaged_at_byte_zero(tmp_path: Path) -> None
         list(read_mcap(path, log_time_order=True))
     assert caught.value.offset == 0
     assert summary_channel_types(path) == {}
+
+
+_KILLED_WRITER = """
+import sys, time
+sys.path[:0] = [{tests!r}, {tests_root!r}]
+from test_io_mcap_file import TRACKS, _graph_output
+from gldt_core.io.mcap_file import McapWriter
+writer = McapWriter({path!r}, flush_interval_s=0.2)
+for frame in range(30):
+    writer.write("/gldt/tracks", TRACKS, _graph_output(TRACKS, frame), 1_000 + frame)
+print("written", flush=True)
+time.sleep(600)
+"""
+
+
+def test_a_writer_killed_with_sigkill_leaves_every_message_older_than_its_flush_interval(tmp_path: Path) -> None:
+    """Issue 31: SIGKILL of the recorder after a quiet flush interval loses nothing it wrote;
+    its 30 small messages would all sit in one unwritten 256 KiB chunk without the periodic flush."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from gldt_core.io.recording import iter_recorded
+
+    path = tmp_path / "graph.mcap"
+    script = _KILLED_WRITER.format(
+        tests=str(Path(__file__).parent), tests_root=str(Path(__file__).parents[1]), path=str(path)
+    )
+    child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "written"
+        time.sleep(0.6)  # three flush intervals
+    finally:
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait()
+    assert summary_channel_types(path) == {}, "a killed writer cannot have written its summary"
+    frames = []
+    with pytest.raises(ValueError, match=r"recording .*graph\.mcap is damaged after the messages already read"):
+        for _, message, _ in iter_recorded(path, "gldt/tracks"):
+            frames.append(int(message.frame_index))
+    assert frames == list(range(30))
+
+
+def test_the_writer_flushes_on_its_own_while_no_message_comes(tmp_path: Path) -> None:
+    import time
+
+    path = tmp_path / "graph.mcap"
+    writer = McapWriter(path, flush_interval_s=0.1)
+    try:
+        writer.write("/gldt/tracks", TRACKS, _graph_output(TRACKS, 0), 1_000)
+        deadline = time.monotonic() + 5.0
+        while _read_until_damage(path) == [] and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert [t for t, _, _ in _read_until_damage(path)] == ["/gldt/tracks"]
+    finally:
+        writer.close()
+    assert [t for t, _, _ in _our_order(path, False)] == ["/gldt/tracks"]
+    with pytest.raises(ValueError, match="flush_interval_s must be positive"):
+        McapWriter(tmp_path / "other.mcap", flush_interval_s=0)
+
+
+def _read_until_damage(path: Path) -> list[tuple[str, int, bytes]]:
+    read: list[tuple[str, int, bytes]] = []
+    try:
+        for message in read_mcap(path):
+            read.append((message.topic, message.log_time_ns, message.data))
+    except McapDamageError:
+        pass
+    return read

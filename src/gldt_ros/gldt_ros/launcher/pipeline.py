@@ -9,7 +9,10 @@ ground-truth topics into the graph, either at the bag's pace times ``--rate`` or
 makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver` plays and records).
 ``--record OUT.mcap`` writes every output topic, with its type, to an MCAP file. The run ends at
 the bag's end or on Ctrl-C, and the child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if
-they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`).
+they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`). Every child
+dies with ``pipeline``: a ``kill -9`` of it sends them SIGTERM (Linux parent-death signal,
+:func:`spawn`), and the recording keeps everything up to the last second
+(:class:`gldt_core.io.mcap_file.McapWriter`).
 
 The player restamps the bag's frames to the time the replay starts (``--keep-bag-stamps`` keeps
 them), sends each frame's camera_info first, and publishes ``/clock``
@@ -237,6 +240,70 @@ def player_ros_args(args: argparse.Namespace) -> list[str] | None:
 #: on a small machine. A node that dies sooner than this restarts from scratch, as without a spare.
 SPARE_DELAY_S = 5.0
 
+#: ``prctl`` option: the signal the kernel sends a process when the thread that started it ends.
+PR_SET_PDEATHSIG = 1
+#: What a node process gets when ``pipeline`` dies without stopping it (``kill -9``, the OOM
+#: killer): SIGTERM, which rclpy turns into an orderly shutdown (DDS leaves, shared memory is
+#: released) bounded by :data:`~gldt_ros.runtime.teardown_limit.TEARDOWN_LIMIT_S`.
+PARENT_DEATH_SIGNAL = signal.SIGTERM
+
+
+def _load_prctl() -> Callable[..., int] | None:
+    try:
+        import ctypes
+
+        prctl: Callable[..., int] = ctypes.CDLL(None, use_errno=True).prctl
+        return prctl
+    except (OSError, AttributeError):  # not Linux
+        return None
+
+
+_PRCTL = _load_prctl()  # looked up here: the child between fork and exec must not import or load
+
+
+def _die_with_parent(parent_pid: int) -> Callable[[], None]:
+    """``preexec_fn`` of every child: the kernel sends it :data:`PARENT_DEATH_SIGNAL` when the
+    thread that started it ends, and a child whose parent died before the prctl ends at once."""
+
+    def preexec() -> None:
+        if _PRCTL is not None:
+            _PRCTL(PR_SET_PDEATHSIG, int(PARENT_DEATH_SIGNAL), 0, 0, 0)
+        if os.getppid() != parent_pid:
+            os._exit(1)
+
+    return preexec
+
+
+class _Spawner:
+    """Starts every child from one long-lived thread. The parent-death signal is tied to the
+    thread that forked the child, not to the process: a node restarted by the supervisor thread
+    would otherwise get it when that thread ends, at every ``pipeline`` stop."""
+
+    def __init__(self) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="gldt-spawn")
+
+    def popen(self, command: list[str], **options: Any) -> subprocess.Popen[bytes]:
+        options.update(start_new_session=True, preexec_fn=_die_with_parent(os.getpid()))
+
+        def start() -> subprocess.Popen[bytes]:
+            return subprocess.Popen(command, **options)
+
+        return self._thread.submit(start).result()
+
+
+_SPAWNER: _Spawner | None = None
+
+
+def spawn(command: list[str], **options: Any) -> subprocess.Popen[bytes]:
+    """``subprocess.Popen(command, **options)`` in a session of its own (Ctrl-C in a terminal
+    reaches ``pipeline`` alone, which stops the nodes in order) that dies with this process."""
+    global _SPAWNER
+    if _SPAWNER is None:
+        _SPAWNER = _Spawner()
+    return _SPAWNER.popen(command, **options)
+
 
 class NodeProcesses:
     """The child node processes: start, supervise (restart the ones that die), stop.
@@ -272,11 +339,7 @@ class NodeProcesses:
                 return
             except OSError:
                 self._discard_spare(spare)  # it died meanwhile; start from scratch
-        process = subprocess.Popen(
-            node_command(name, self.args),
-            start_new_session=True,
-            env=node_environment(self.args.tune_malloc, self.args.executor),
-        )
+        process = spawn(node_command(name, self.args), env=node_environment(self.args.tune_malloc, self.args.executor))
         self.processes[name] = process
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
@@ -295,10 +358,9 @@ class NodeProcesses:
             self.spare = None
             self._spare_due = time.monotonic() + self.args.spare_delay
         if self.spare is None and time.monotonic() >= self._spare_due:
-            self.spare = subprocess.Popen(
+            self.spare = spawn(
                 [sys.executable, "-m", "gldt_ros.runtime.spare"],
                 stdin=subprocess.PIPE,
-                start_new_session=True,
                 env=node_environment(self.args.tune_malloc, self.args.executor),
             )
 

@@ -1,0 +1,132 @@
+"""``pipeline`` itself under faults (issue 31): killed with SIGKILL, two replays on one host,
+damaged bags. Each test runs the installed command as a user would."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from support import REAL_BAG, REPO_ROOT, isolated_ros_env
+
+pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
+
+PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
+
+
+class Run:
+    """A ``pipeline`` process whose output lines are collected as they come."""
+
+    def __init__(self, arguments: list[str], env: dict[str, str]) -> None:
+        self.process = subprocess.Popen(
+            [str(PIPELINE), *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+        )
+        self.lines: list[str] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.lines.append(line.rstrip("\n"))
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+    def wait(self, timeout_s: float) -> int:
+        code = self.process.wait(timeout=timeout_s)
+        self._reader.join(timeout=5.0)
+        return code
+
+
+def recorded_frames(path: Path) -> list[int]:
+    """``frame_index`` of every ``/gldt/tracks`` message readable in ``path``, in recording order
+    (a recording cut by a kill ends in damage: what was read before it counts)."""
+    from gldt_core.io.recording import iter_recorded
+
+    frames: list[int] = []
+    if not path.is_file():
+        return frames
+    try:
+        for _, message, _ in iter_recorded(path, "gldt/tracks"):
+            frames.append(int(message.frame_index))
+    except ValueError:
+        pass
+    return frames
+
+
+def last_track_log_time_ns(path: Path) -> int:
+    from gldt_core.io.recording import iter_recorded
+
+    last = -1
+    try:
+        for _, _, log_time_ns in iter_recorded(path, "gldt/tracks"):
+            last = log_time_ns
+    except ValueError:
+        pass
+    return last
+
+
+def child_pids(pid: int) -> set[int]:
+    """Direct children of ``pid`` (every thread's), from /proc."""
+    children: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            children.update(int(c) for c in (task / "children").read_text().split())
+        except OSError:
+            continue
+    return children
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie waiting for its reaper does not)."""
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"
+
+
+def test_sigkill_of_pipeline_keeps_the_recording_and_ends_its_nodes(tmp_path: Path) -> None:
+    """``kill -9`` of the pipeline alone: every node process (and the warm spare) ends within a
+    few seconds, and the recording reads back with the frames answered up to the last second."""
+    record = tmp_path / "graph.mcap"
+    run = Run(["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), "--spare-delay", "0"], isolated_ros_env())
+    try:
+        deadline = time.monotonic() + 120.0
+        while not recorded_frames(record):
+            assert run.process.poll() is None, "pipeline ended before recording anything:\n" + run.text
+            assert time.monotonic() < deadline, "no track recorded after 120 s:\n" + run.text
+            time.sleep(0.05)
+        readable_before = len(recorded_frames(record))
+        time.sleep(0.5)  # the kill lands between two of the writer's flushes, mid-replay
+        started = {int(line.rsplit("(pid ", 1)[1].split(")")[0].split(",")[0]) for line in run.lines if "(pid " in line}
+        pids = child_pids(run.process.pid) | started
+        assert run.process.poll() is None and not any("replayed" in line for line in run.lines), (
+            "the replay ended before the kill; it must land mid-replay:\n" + run.text
+        )
+        killed_ns = time.time_ns()
+        os.kill(run.process.pid, signal.SIGKILL)
+    finally:
+        if run.process.poll() is None and "killed_ns" not in locals():
+            run.process.kill()
+        run.wait(30.0)
+    assert len(started) == 5 and len(pids) >= 6, f"expected five nodes and the spare, got {pids}:\n{run.text}"
+    deadline = time.monotonic() + 8.0
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    left = sorted(pid for pid in pids if alive(pid))
+    for pid in left:  # do not leave them to disturb other tests
+        os.kill(pid, signal.SIGKILL)
+    assert not left, f"node processes {left} outlived the killed pipeline:\n{run.text}"
+    frames = recorded_frames(record)
+    assert len(frames) >= readable_before and frames == sorted(set(frames)), frames
+    assert frames == list(range(frames[0], frames[0] + len(frames))), f"frames lost inside the recording: {frames}"
+    behind_s = (killed_ns - last_track_log_time_ns(record)) / 1e9
+    assert behind_s <= 1.5, f"the recording ends {behind_s:.2f} s before the kill (the writer flushes every second)"
