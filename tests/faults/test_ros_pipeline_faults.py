@@ -130,3 +130,59 @@ def test_sigkill_of_pipeline_keeps_the_recording_and_ends_its_nodes(tmp_path: Pa
     assert frames == list(range(frames[0], frames[0] + len(frames))), f"frames lost inside the recording: {frames}"
     behind_s = (killed_ns - last_track_log_time_ns(record)) / 1e9
     assert behind_s <= 1.5, f"the recording ends {behind_s:.2f} s before the kill (the writer flushes every second)"
+
+
+def test_two_replays_at_once_each_record_only_their_own_frames(tmp_path: Path) -> None:
+    """Without ROS_DOMAIN_ID each ``--bag`` run takes a free domain of its own and says so; two
+    lockstep replays of one bag, started a second apart, each record the bag's frames once."""
+    from gldt_core.io.bag import BagSource
+
+    frames = len(BagSource(REAL_BAG))
+    env = isolated_ros_env()
+    del env["ROS_DOMAIN_ID"]
+    runs = []
+    for k in range(2):
+        runs.append(Run(["--bag", str(REAL_BAG), "--lockstep", "--record", str(tmp_path / f"run{k}.mcap")], env))
+        time.sleep(1.0)
+    try:
+        codes = [run.wait(300.0) for run in runs]
+    finally:
+        for run in runs:
+            if run.process.poll() is None:
+                run.process.kill()
+    domains = []
+    for run, code in zip(runs, codes):
+        assert code == 0, run.text
+        isolated = [line for line in run.lines if line.startswith("pipeline: isolated on ROS_DOMAIN_ID ")]
+        assert len(isolated) == 1, run.text
+        domains.append(int(isolated[0].split("ROS_DOMAIN_ID ")[1].split(",")[0]))
+        assert "not awaited" not in run.text, run.text
+    assert domains[0] != domains[1]
+    for k in range(2):
+        recorded = recorded_frames(tmp_path / f"run{k}.mcap")
+        assert recorded == list(range(frames)), f"run {k} recorded frames {recorded}"
+
+
+def test_a_domain_asked_for_is_kept_and_a_live_graph_keeps_the_environments() -> None:
+    import argparse
+
+    from gldt_ros.launcher.pipeline import choose_domain
+
+    saved = os.environ.get("ROS_DOMAIN_ID")
+    try:
+        os.environ["ROS_DOMAIN_ID"] = "17"
+        assert choose_domain(argparse.Namespace(domain_id=None, bag=REAL_BAG)) is None
+        assert choose_domain(argparse.Namespace(domain_id=None, bag=None)) is None
+        assert os.environ["ROS_DOMAIN_ID"] == "17"
+        line = choose_domain(argparse.Namespace(domain_id=42, bag=REAL_BAG))
+        assert line is not None and "42" in line and os.environ["ROS_DOMAIN_ID"] == "42"
+        del os.environ["ROS_DOMAIN_ID"]
+        assert choose_domain(argparse.Namespace(domain_id=None, bag=None)) is None
+        assert "ROS_DOMAIN_ID" not in os.environ
+        line = choose_domain(argparse.Namespace(domain_id=None, bag=REAL_BAG))
+        assert line is not None and 101 <= int(os.environ["ROS_DOMAIN_ID"]) <= 232
+    finally:
+        if saved is None:
+            os.environ.pop("ROS_DOMAIN_ID", None)
+        else:
+            os.environ["ROS_DOMAIN_ID"] = saved

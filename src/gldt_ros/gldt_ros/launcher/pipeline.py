@@ -55,6 +55,47 @@ from gldt_ros.runtime.teardown_limit import TEARDOWN_LIMIT_S, TEARDOWN_TIMEOUT_E
 NODE_MALLOC_SETTINGS = {"MALLOC_ARENA_MAX": "2", HEAP_TRIM_PERIOD_ENV: f"{DEFAULT_PERIOD_S:g}"}
 
 
+#: The largest ROS_DOMAIN_ID whose DDS ports fit in 16 bits (ROS 2's documented limit on Linux).
+MAX_DOMAIN_ID = 232
+#: Where a replay picks its own domain: above the ids people and tests usually set by hand.
+OWN_DOMAIN_IDS = range(101, MAX_DOMAIN_ID + 1)
+
+
+def domain_in_use(domain_id: int) -> bool:
+    """Whether a DDS participant on this host holds ``domain_id``: the first participant of a
+    domain binds its unicast discovery port (RTPS: 7400 + 250 * domain + 10) exclusively."""
+    import socket
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as probe:
+        try:
+            probe.bind(("0.0.0.0", 7400 + 250 * domain_id + 10))
+        except OSError:
+            return True
+    return False
+
+
+def choose_domain(args: argparse.Namespace) -> str | None:
+    """Set this process's ``ROS_DOMAIN_ID`` (the nodes inherit it) and say why, in one line:
+    ``--domain-id`` where given; else the environment's where set, or for a live graph (it must
+    meet the camera); else, for a ``--bag`` replay, a free id of its own picked at random from
+    :data:`OWN_DOMAIN_IDS`."""
+    if args.domain_id is not None:
+        os.environ["ROS_DOMAIN_ID"] = str(args.domain_id)
+        return f"pipeline: on ROS_DOMAIN_ID {args.domain_id} (--domain-id)"
+    if os.environ.get("ROS_DOMAIN_ID", "").strip() or args.bag is None:
+        return None
+    import random
+
+    candidates = list(OWN_DOMAIN_IDS)
+    random.SystemRandom().shuffle(candidates)
+    chosen = next((d for d in candidates if not domain_in_use(d)), candidates[0])
+    os.environ["ROS_DOMAIN_ID"] = str(chosen)
+    return (
+        f"pipeline: isolated on ROS_DOMAIN_ID {chosen}, free and its own "
+        "(set ROS_DOMAIN_ID or --domain-id to join another graph)"
+    )
+
+
 def node_environment(tune_malloc: bool, executor: str | None = None) -> dict[str, str]:
     """The environment node processes start with: this one's, plus :data:`NODE_MALLOC_SETTINGS`
     where ``tune_malloc`` and the user has not set them, the shipped small-segment DDS profile
@@ -122,6 +163,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument("--namespace", default="", help="namespace of the graph (one per camera)")
     parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
     parser.add_argument(
+        "--domain-id",
+        type=int,
+        default=None,
+        metavar="N",
+        help="ROS_DOMAIN_ID of the graph (default: $ROS_DOMAIN_ID; a --bag replay without either picks "
+        "a free one of its own, so two replays on one host never meet)",
+    )
+    parser.add_argument(
         "--frame-timeout", type=float, default=20.0, help="lockstep: seconds to wait for one frame's tracks"
     )
     parser.add_argument("--startup-timeout", type=float, default=60.0, help="seconds to wait for all nodes to come up")
@@ -169,6 +218,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
             args.executor = executor_kind()
         except ValueError as error:
             parser.error(str(error))
+    if args.domain_id is not None and not 0 <= args.domain_id <= MAX_DOMAIN_ID:
+        parser.error(f"--domain-id must be in 0..{MAX_DOMAIN_ID}, got {args.domain_id}")
     if args.rate <= 0:
         parser.error(f"--rate must be positive, got {args.rate}")
     if not 0 <= args.spare_delay < float("inf"):
@@ -493,6 +544,9 @@ def report_removed_segments() -> None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of ``ros2 run gldt_ros pipeline``."""
     args = parse_args(argv if argv is not None else sys.argv[1:])
+    domain = choose_domain(args)
+    if domain is not None:
+        print(domain, flush=True)
     import rclpy
 
     from gldt_ros.launcher.replay import GraphDriver

@@ -197,6 +197,10 @@ class GraphDriver(Node):
         self.image_type = TRANSPORT_TYPES[getattr(args, "image_transport", None) or "raw"]
         self.clock: ReplayClock | None = None
         self._answered: set[int] = set()
+        #: Lockstep: stamps of the frames this player sent and still waits for. An answer stamped
+        #: otherwise is another graph's (or one given up) and never answers this run's frame.
+        self._awaiting: set[int] = set()
+        self.unmatched_answers = 0
         self._published_at: dict[int, float] = {}
         self.latencies_s: list[float] = []
         self._answered_cv = threading.Condition()
@@ -300,7 +304,10 @@ class GraphDriver(Node):
                 with self._answered_cv:
                     self.tracks_received += 1
                     if self.args.lockstep:  # only lockstep waits on answers; free runs must not grow a set
-                        self._answered.add(stamp)
+                        if stamp in self._awaiting:
+                            self._answered.add(stamp)
+                        else:  # a frame given up (it came late), or none of this run's
+                            self.unmatched_answers += 1
                     published = self._published_at.pop(stamp, None)
                     if published is not None:
                         self.latencies_s.append(received - published)
@@ -442,6 +449,9 @@ class GraphDriver(Node):
                         info.publish(with_header_stamp(first_camera_info.data, last_stamp))
                     camera_info_sent = True
                     self.note_published(last_stamp)
+                    if self.args.lockstep:
+                        with self._answered_cv:
+                            self._awaiting.add(last_stamp)
                 publisher.publish(data)
                 if message.msgtype in IMAGE_TYPES:
                     frames += 1
@@ -464,6 +474,7 @@ class GraphDriver(Node):
         return (
             f"pipeline: replayed {frames} frames in {elapsed:.1f} s ({frames / max(elapsed, 1e-9):.1f} fps), "
             f"{self.tracks_received} track messages, {waited_out} frames without an answer{latency}"
+            + (f", {self.unmatched_answers} answers to frames not awaited ignored" if self.unmatched_answers else "")
         )
 
     def _paced_wait(self, due: float, stop: threading.Event, start_wall: float, clock_start_ns: int) -> None:
@@ -479,16 +490,19 @@ class GraphDriver(Node):
     def _wait_answer(self, stamp_ns: int, stop: threading.Event, dead: Callable[[], list[str]]) -> bool:
         deadline = time.monotonic() + self.args.frame_timeout
         with self._answered_cv:
-            while stamp_ns not in self._answered:
-                if self._restarted:
-                    self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns: a node was restarted")
-                    return False
-                if stop.is_set() or time.monotonic() > deadline or dead():
-                    self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns; going on")
-                    return False
-                self._answered_cv.wait(0.05)
-            self._answered.discard(stamp_ns)
-        return True
+            try:
+                while stamp_ns not in self._answered:
+                    if self._restarted:
+                        self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns: a node was restarted")
+                        return False
+                    if stop.is_set() or time.monotonic() > deadline or dead():
+                        self.get_logger().warning(f"no tracks for frame stamped {stamp_ns} ns; going on")
+                        return False
+                    self._answered_cv.wait(0.05)
+                self._answered.discard(stamp_ns)
+                return True
+            finally:
+                self._awaiting.discard(stamp_ns)
 
     def wait_until_recorded(self, stamp_ns: int, stop: threading.Event, timeout_s: float = 2.0) -> bool:
         """Wait until every recorded topic has delivered a message stamped ``stamp_ns`` or later.
