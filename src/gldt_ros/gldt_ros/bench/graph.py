@@ -84,7 +84,8 @@ def graph_run(bag: Path, extra: list[str]) -> str:
         raise SystemExit("bench_graph: `pipeline` not on PATH; run through scripts/with_ros_env.sh")
     completed = subprocess.run([pipeline, "--bag", str(bag), *extra], capture_output=True, text=True, timeout=1800)
     summary = [line for line in completed.stdout.splitlines() if "replayed" in line]
-    if completed.returncode != 0 or not summary:
+    # 3: frames lost or unanswered (a paced replay that outran the core); the summary counts them.
+    if completed.returncode not in (0, 3) or not summary:
         raise SystemExit(f"bench_graph: pipeline failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
     return summary[-1]
 

@@ -16,7 +16,16 @@ dies with ``pipeline``: a ``kill -9`` of it sends them SIGTERM (Linux parent-dea
 
 The player restamps the bag's frames to the time the replay starts (``--keep-bag-stamps`` keeps
 them), sends each frame's camera_info first, and publishes ``/clock``
-(:mod:`gldt_ros.launcher.replay`). ROS arguments after ``--ros-args`` (remaps, ``-p name:=value``,
+(:mod:`gldt_ros.launcher.replay`). It reads a damaged bag as the offline reader does: a forward
+scan that needs no summary, a message that cannot be read skipped with one warning, and
+everything before damage replayed.
+
+Exit status: 0 when every frame of the bag was replayed and answered; 3 when frames were lost
+(unreadable messages skipped, a bag that ends in damage) or unanswered (lockstep frames given up,
+paced frames sent but never answered), said in one line after the summary, which counts them; 1
+when the graph failed (a node that would not start, died for good or did not stop cleanly).
+
+ROS arguments after ``--ros-args`` (remaps, ``-p name:=value``,
 ``--params-file``, ``--log-level``) go to every node and to the player, as ``ros2 launch`` would
 hand them on: ``pipeline --bag B --ros-args -p use_sim_time:=true -r camera/image_raw:=/cam/image``.
 """
@@ -549,7 +558,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(domain, flush=True)
     import rclpy
 
-    from gldt_ros.launcher.replay import GraphDriver
+    from gldt_ros.launcher.replay import LOST_FRAMES_EXIT, GraphDriver
 
     use_graph_dds_profile()
     use_frames_profile_if_shipped()  # this process plays the camera (and hosts the buffer --in-process)
@@ -594,6 +603,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.bag is not None:
             summary = driver.replay(stop_requested, lambda: children.dead() if children else [])
             print(summary, flush=True)
+            if driver.loss is not None and not stop_requested.is_set():
+                print(f"pipeline: frames lost or unanswered: {driver.loss} (exit {LOST_FRAMES_EXIT})", flush=True)
+                status = LOST_FRAMES_EXIT
         else:
             while not stop_requested.is_set():
                 dead = children.dead() if children else []

@@ -45,6 +45,7 @@ from gldt_core.io.bag import (
 )
 from gldt_core.io.cdr import header_stamp_ns, with_header_stamp
 from gldt_core.io.mcap_file import McapMessage, McapWriter
+from gldt_core.io.ros_types import typestore
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.graph import NODES
 from gldt_ros.interface.graph_links import (
@@ -93,6 +94,9 @@ STAMPED_TYPES = frozenset({*IMAGE_TYPES, CAMERA_INFO_TYPE, GROUND_TRUTH_TYPE})
 CLOCK_PERIOD_S = 0.01
 #: Where rclpy's time source listens (absolute: one clock for every namespace).
 CLOCK_TOPIC = "/clock"
+#: ``pipeline``'s exit status when a replay lost frames or left them unanswered (:func:`loss_reason`);
+#: ``gldt run`` uses the same for input frames it could not read.
+LOST_FRAMES_EXIT = 3
 #: Images read ahead when looking for the bag's first camera_info (:func:`bag_head`).
 HEAD_IMAGES = 64
 
@@ -117,15 +121,52 @@ def bag_head(bag: Path, image_type: str) -> tuple[int | None, McapMessage | None
     no further than both, or :data:`HEAD_IMAGES` images when it has no camera_info near its start."""
     first_stamp: int | None = None
     images = 0
-    for message in bag_messages(bag, log_time_order=True):
+    for message in readable_head(bag_messages(bag, log_time_order=True)):
+        try:
+            stamp = header_stamp_ns(message.data)
+        except ValueError:
+            continue  # unreadable: the replay skips it (and says so)
         if message.msgtype == CAMERA_INFO_TYPE:
             return first_stamp, message
         if message.msgtype == image_type:
-            first_stamp = header_stamp_ns(message.data) if first_stamp is None else first_stamp
+            first_stamp = stamp if first_stamp is None else first_stamp
             images += 1
             if images >= HEAD_IMAGES:
                 break
     return first_stamp, None
+
+
+def readable_head(messages: Iterator[McapMessage]) -> Iterator[McapMessage]:
+    """``messages`` up to any damage, which ends them quietly (the replay reports it)."""
+    try:
+        yield from messages
+    except ValueError:
+        return
+
+
+def head_channel_types(bag: Path, image_type: str, limit: int = 10_000) -> dict[str, str]:
+    """``topic -> type`` of the messages at ``bag``'s start, read forward up to its first message of
+    ``image_type`` (at most ``limit`` messages, and never past damage): the channels of a bag whose
+    files have no readable summary (:func:`~gldt_core.io.bag.bag_channel_types` is empty then)."""
+    types: dict[str, str] = {}
+    for count, message in enumerate(readable_head(bag_messages(bag))):
+        types.setdefault(message.topic, message.msgtype)
+        if message.msgtype == image_type or count + 1 >= limit:
+            break
+    return types
+
+
+def unreadable_reason(message: McapMessage) -> str | None:
+    """Why the player cannot send ``message`` (its bytes are not a valid message of its type, as the
+    offline reader judges them), or ``None``. Only the types the player restamps are checked."""
+    if message.msgtype not in STAMPED_TYPES:
+        return None
+    try:
+        header_stamp_ns(message.data)
+        typestore().deserialize_cdr(message.data, message.msgtype)
+    except Exception as error:  # noqa: BLE001 - rosbags raises several types on bad bytes
+        return f"{type(error).__name__}: {error}"
+    return None
 
 
 def frame_ordered(messages: Iterable[McapMessage]) -> Iterator[McapMessage]:
@@ -139,6 +180,22 @@ def frame_ordered(messages: Iterable[McapMessage]) -> Iterator[McapMessage]:
             group = []
         group.append(message)
     yield from sorted(group, key=lambda m: m.msgtype in IMAGE_TYPES)
+
+
+def loss_reason(
+    unreadable: int, unreadable_frames: int, damage: str | None, unanswered: int, lockstep: bool
+) -> str | None:
+    """One line saying why a replay lost frames or left them unanswered, or ``None`` when it did
+    neither (``pipeline`` then exits 0, else :data:`LOST_FRAMES_EXIT`)."""
+    reasons = []
+    if unreadable:
+        reasons.append(f"{unreadable} unreadable bag message(s) skipped ({unreadable_frames} of them frames)")
+    if damage:
+        reasons.append(f"the bag ends in damage ({damage})")
+    if unanswered:
+        how = "given up after --frame-timeout or a restart" if lockstep else "sent but never answered"
+        reasons.append(f"{unanswered} frame(s) without tracks ({how})")
+    return "; ".join(reasons) or None
 
 
 class Restamp:
@@ -205,6 +262,12 @@ class GraphDriver(Node):
         self.latencies_s: list[float] = []
         self._answered_cv = threading.Condition()
         self.tracks_received = 0
+        #: Frames this player sent that ``/gldt/tracks`` answered (a paced replay's loss count).
+        self.frames_answered = 0
+        #: Why frames of the last replay were lost or unanswered, in one line, or ``None``.
+        self.loss: str | None = None
+        #: The damage the last replay's bag ended in, or ``None``.
+        self.damage: str | None = None
         # Newest header stamp received per recorded topic: a lockstep replay closes the recording
         # only once every topic has caught up with the last frame (see wait_until_recorded).
         self._newest_recorded: dict[str, int] = {}
@@ -310,6 +373,7 @@ class GraphDriver(Node):
                             self.unmatched_answers += 1
                     published = self._published_at.pop(stamp, None)
                     if published is not None:
+                        self.frames_answered += 1
                         self.latencies_s.append(received - published)
                     self._answered_cv.notify_all()
 
@@ -350,7 +414,9 @@ class GraphDriver(Node):
         nodes' own links (tracker to scheduler, scheduler to buffer, ...) match on their own time.
         """
         image_publishers = []
-        for topic, msgtype in bag_channel_types(self.args.bag).items():
+        # Without a readable summary (a cut recording) the types of the bag's first messages.
+        channel_types = bag_channel_types(self.args.bag) or head_channel_types(self.args.bag, self.image_type)
+        for topic, msgtype in channel_types.items():
             if msgtype in IMAGE_TYPES and msgtype != self.image_type:
                 continue  # the other transport: not played (see replay)
             try:
@@ -404,6 +470,10 @@ class GraphDriver(Node):
         frames = 0
         skipped_topics: set[str] = set()
         waited_out = 0
+        unreadable = unreadable_frames = 0
+        self.damage = None
+        with self._answered_cv:
+            self.frames_answered = 0
         first_image_ns, first_camera_info = bag_head(self.args.bag, self.image_type)
         restamp = Restamp(first_image_ns, keep=bool(getattr(self.args, "keep_bag_stamps", False)))
         camera_info_sent = False
@@ -412,7 +482,7 @@ class GraphDriver(Node):
         clock_offset_ns = 0  # this replay's stamps minus the bag's log times: the clock between frames
         last_stamp: int | None = None
         try:
-            for message in frame_ordered(bag_messages(self.args.bag, log_time_order=True)):
+            for message in frame_ordered(self._bag_stream()):
                 if stop.is_set():
                     break
                 if message.msgtype in IMAGE_TYPES and message.msgtype != self.image_type:
@@ -427,7 +497,19 @@ class GraphDriver(Node):
                         skipped_topics.add(message.topic)
                         self.get_logger().warning(f"not replaying topic {message.topic}: {error}")
                     continue
-                data = restamp.message(message)
+                reason = unreadable_reason(message)
+                if reason is None:
+                    try:
+                        data = restamp.message(message)
+                    except ValueError as error:
+                        reason = str(error)
+                if reason is not None:  # skipped, as the offline reader skips it; in lockstep nothing waits for it
+                    unreadable += 1
+                    unreadable_frames += message.msgtype in IMAGE_TYPES
+                    self.get_logger().warning(
+                        f"skipped an unreadable {message.topic} message logged at {message.log_time_ns} ns: {reason}"
+                    )
+                    continue
                 if first_log_ns is None:
                     first_log_ns = message.log_time_ns
                     first_stamp = header_stamp_ns(data) if message.msgtype in STAMPED_TYPES else None
@@ -457,14 +539,17 @@ class GraphDriver(Node):
                     frames += 1
                     if self.args.lockstep and last_stamp is not None and not self._wait_answer(last_stamp, stop, dead):
                         waited_out += 1
-        except ValueError as error:
-            self.get_logger().error(str(error))
+        except ValueError as error:  # not the bag's damage (_bag_stream ends at that): a message the player cannot send
+            self.damage = self.damage or str(error)
+            self.get_logger().error(f"replay stopped: {error}")
         if not self.args.lockstep:
             self.drain(frames, stop)
         elif last_stamp is not None:
             self.wait_until_recorded(last_stamp, stop)
         elapsed = time.monotonic() - start_wall
         self.frames_published = frames
+        unanswered = waited_out if self.args.lockstep else max(0, frames - self.frames_answered)
+        self.loss = loss_reason(unreadable, unreadable_frames, self.damage, unanswered, bool(self.args.lockstep))
         latency = ""
         if self.latencies_s:
             import numpy as np
@@ -473,9 +558,20 @@ class GraphDriver(Node):
             latency = f", camera-to-tracks latency p50 {p50:.0f} ms p99 {p99:.0f} ms"
         return (
             f"pipeline: replayed {frames} frames in {elapsed:.1f} s ({frames / max(elapsed, 1e-9):.1f} fps), "
-            f"{self.tracks_received} track messages, {waited_out} frames without an answer{latency}"
+            f"{self.tracks_received} track messages, {unanswered} frames without an answer{latency}"
             + (f", {self.unmatched_answers} answers to frames not awaited ignored" if self.unmatched_answers else "")
+            + (f", {unreadable} unreadable messages skipped ({unreadable_frames} frames)" if unreadable else "")
+            + (", the bag ends in damage" if self.damage else "")
         )
+
+    def _bag_stream(self) -> Iterator[McapMessage]:
+        """The bag's messages in log-time order (a forward scan: no summary needed), ending at the
+        first damage with one error line; :attr:`damage` then says what it was."""
+        try:
+            yield from bag_messages(self.args.bag, log_time_order=True)
+        except ValueError as error:
+            self.damage = str(error)
+            self.get_logger().error(f"{error}; the replay ends here")
 
     def _paced_wait(self, due: float, stop: threading.Event, start_wall: float, clock_start_ns: int) -> None:
         """Wait until ``due`` (monotonic), moving ``/clock`` along the bag's time meanwhile."""
