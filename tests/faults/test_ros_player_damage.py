@@ -141,3 +141,58 @@ def test_the_loss_line_names_each_cause() -> None:
     assert line is not None
     assert line.startswith("3 unreadable bag message(s) skipped (1 of them frames); the bag ends in damage")
     assert "1 frame(s) without tracks (given up" in line
+
+
+def test_a_bag_cut_only_in_its_summary_replays_in_full_and_exits_0(tmp_path: Path) -> None:
+    from gldt_core.io.bag import bag_channel_types
+
+    bag = tmp_path / "no_summary"
+    shutil.copytree(REAL_BAG, bag)
+    (mcap,) = bag.glob("*.mcap")
+    content = mcap.read_bytes()
+    mcap.write_bytes(content[:-200])
+    assert bag_channel_types(bag) == {}
+    record = tmp_path / "graph.mcap"
+    completed = run_pipeline(bag, record)
+    output = completed.stdout + completed.stderr
+    assert completed.returncode == 0, output[-4000:]
+    assert recorded_track_stamps(record) == image_stamps(REAL_BAG)
+
+
+def test_a_paced_replay_counts_frames_sent_but_never_answered(tmp_path: Path) -> None:
+    """The player alone, with no graph to answer: every frame it sent is unanswered, and says so."""
+    import threading
+
+    import rclpy
+
+    from gldt_ros.launcher.pipeline import parse_args
+    from gldt_ros.launcher.replay import GraphDriver
+
+    class Publisher:
+        sent = 0
+
+        def get_subscription_count(self) -> int:
+            return 1
+
+        def publish(self, data: bytes) -> None:
+            Publisher.sent += 1
+
+    bag, _, _ = with_nine_byte_image(tmp_path / "nine_bytes.mcap")
+    rclpy.init(domain_id=int(isolated_ros_env()["ROS_DOMAIN_ID"]))
+    try:
+        driver = GraphDriver(parse_args(["--bag", str(bag), "--rate", "20"]))
+        driver._publisher = lambda topic, _type: Publisher()  # type: ignore[method-assign]
+        driver.graph_nodes = []
+        try:
+            summary = driver.replay(threading.Event(), lambda: [])
+        finally:
+            driver.close()
+            driver.destroy_node()
+    finally:
+        rclpy.shutdown()
+    frames = len(image_stamps(bag))
+    assert f"replayed {frames} frames" in summary and f"{frames} frames without an answer" in summary, summary
+    assert driver.loss == (
+        "1 unreadable bag message(s) skipped (1 of them frames); "
+        f"{frames} frame(s) without tracks (sent but never answered)"
+    )
