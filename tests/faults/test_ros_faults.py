@@ -223,7 +223,11 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
         kill_after_s=1.5,
     )
     text = run.text
-    assert run.returncode == 0, text
+    # The frame in flight when the node died is given up: pipeline says so and exits 3 (frames
+    # unanswered); 0 only where the kill fell between frames.
+    lost = run.lines_with("frames lost or unanswered")
+    assert run.returncode == (3 if lost else 0), text
+    assert all("restart" in line for line in lost), text
     assert len(run.times_of(f"{victim} exited")) == 1, text
     assert (
         len(run.lines_with(f"started {victim} (pid")) == 2
