@@ -132,6 +132,36 @@ def test_sigkill_of_pipeline_keeps_the_recording_and_ends_its_nodes(tmp_path: Pa
     assert behind_s <= 1.5, f"the recording ends {behind_s:.2f} s before the kill (the writer flushes every second)"
 
 
+def test_ctrl_c_of_pipeline_stops_cleanly_and_keeps_the_recording(tmp_path: Path) -> None:
+    """SIGINT to the pipeline pid alone, mid-replay at the camera's pace (the player publishing
+    ``/clock`` between frames): one line, no traceback, exit 0, every node stopped, and the
+    recording closed with what was answered."""
+    record = tmp_path / "graph.mcap"
+    run = Run(["--bag", str(REAL_BAG), "--rate", "1.0", "--record", str(record)], isolated_ros_env())
+    try:
+        deadline = time.monotonic() + 120.0
+        while not recorded_frames(record):
+            assert run.process.poll() is None, "pipeline ended before recording anything:\n" + run.text
+            assert time.monotonic() < deadline, "no track recorded after 120 s:\n" + run.text
+            time.sleep(0.05)
+        started = {int(line.rsplit("(pid ", 1)[1].split(")")[0].split(",")[0]) for line in run.lines if "(pid " in line}
+        assert run.process.poll() is None and not any("replayed" in line for line in run.lines), (
+            "the replay ended before the interrupt; it must land mid-replay:\n" + run.text
+        )
+        time.sleep(1.0)  # well into the paced replay (150 frames at 30 Hz take 5 s)
+        os.kill(run.process.pid, signal.SIGINT)
+        code = run.wait(60.0)
+    finally:
+        if run.process.poll() is None:
+            run.process.kill()
+    assert code == 0, run.text
+    assert "Traceback" not in run.text and "FATAL" not in run.text, run.text
+    assert any("interrupted, stopping" in line for line in run.lines), run.text
+    assert len(started) == 5 and not [pid for pid in started if alive(pid)], run.text
+    frames = recorded_frames(record)
+    assert frames and frames == sorted(set(frames)), frames
+
+
 def test_two_replays_at_once_each_record_only_their_own_frames(tmp_path: Path) -> None:
     """Without ROS_DOMAIN_ID each ``--bag`` run takes a free domain of its own and says so; two
     lockstep replays of one bag, started a second apart, each record the bag's frames once."""

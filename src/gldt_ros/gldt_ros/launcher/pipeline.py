@@ -562,7 +562,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     use_graph_dds_profile()
     use_frames_profile_if_shipped()  # this process plays the camera (and hosts the buffer --in-process)
-    rclpy.init(args=player_ros_args(args))
+    from rclpy.signals import SignalHandlerOptions
+
+    # Ctrl-C (SIGINT) is Python's KeyboardInterrupt here, handled below like any stop: rclpy's own
+    # handler would shut the context down under the player, whose next publish then fails.
+    rclpy.init(args=player_ros_args(args), signal_handler_options=SignalHandlerOptions.NO)
     if args.image_transport is not None:
         print(f"pipeline: the bag's frames go to image_transport {args.image_transport}", flush=True)
     stop_requested = threading.Event()
