@@ -24,6 +24,8 @@ from typing import Any, cast
 
 import numpy as np
 
+from gldt_core.track.boxes import iou_xyxy
+
 #: Ground-truth looming: a box is "approaching" when 1/size fitted over this window (s) gives a
 #: time to collision within :data:`APPROACH_HORIZON_S`.
 TRUTH_WINDOW_S = 1.0
@@ -114,16 +116,6 @@ def truth_approaching(gt: np.ndarray, fps: float) -> dict[tuple[int, int], bool]
     return out
 
 
-def _iou(box: tuple[float, float, float, float], boxes: np.ndarray) -> np.ndarray:
-    x1 = np.maximum(box[0], boxes[:, 0])
-    y1 = np.maximum(box[1], boxes[:, 1])
-    x2 = np.minimum(box[2], boxes[:, 2])
-    y2 = np.minimum(box[3], boxes[:, 3])
-    inter = np.clip(x2 - x1, 0, None) * np.clip(y2 - y1, 0, None)
-    area = (box[2] - box[0]) * (box[3] - box[1]) + (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-    return inter / np.maximum(area - inter, 1e-9)
-
-
 def run_sequence(sequence: Any, detectors: tuple[Any, Any], config: Any) -> StreamCounts:
     """Run the GL-DT system on one cached sequence and count its planner stream."""
     from gldt_core.system.gldt_system import GLDTSystem
@@ -185,7 +177,7 @@ def run_sequence(sequence: Any, detectors: tuple[Any, Any], config: Any) -> Stre
                     entry.center_x + entry.width / 2,
                     entry.center_y + entry.height / 2,
                 )
-                overlap = _iou(box, truth_boxes)
+                overlap = iou_xyxy(np.array([box]), truth_boxes)[0]
                 best = int(np.argmax(overlap))
                 if overlap[best] >= TRUTH_IOU:
                     judged = approaching.get((index + 1, int(truth[best, 1])))

@@ -25,7 +25,7 @@ life (:mod:`.class_evidence`), a filtered time to collision with its standard de
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -199,18 +199,16 @@ def _measured_size(track: Track) -> float | None:
 def _removed(last: PlannerTrack, track: Track) -> PlannerTrack:
     """The final entry of an id: its last published entry, at the track's last prediction."""
     cx, cy, w, h, vx, vy = track.kf.mean[:6].tolist()
-    return PlannerTrack(
-        **{
-            **last.__dict__,
-            "state": "removed",
-            "center_x": cx,
-            "center_y": cy,
-            "width": w,
-            "height": h,
-            "velocity_x": vx,
-            "velocity_y": vy,
-            "covariance": track.covariance,
-            "frames_since_update": track.frames_since_update,
-            "looming": NO_ESTIMATE,
-        }
+    return replace(
+        last,
+        state="removed",
+        center_x=cx,
+        center_y=cy,
+        width=w,
+        height=h,
+        velocity_x=vx,
+        velocity_y=vy,
+        covariance=track.covariance,
+        frames_since_update=track.frames_since_update,
+        looming=NO_ESTIMATE,
     )
