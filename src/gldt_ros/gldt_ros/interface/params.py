@@ -63,7 +63,9 @@ _NESTED = ParamSpec(
     0.01,
     1.0,
 )
-_DIAG_PERIOD = ParamSpec("diagnostics_period", 1.0, "Seconds between /diagnostics messages", 0.1, 60.0)
+_DIAG_PERIOD = ParamSpec(
+    "diagnostics_period", 0.5, "Seconds between /diagnostics messages (the heartbeat pipeline watches)", 0.1, 60.0
+)
 
 SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
     "frame_pair_buffer": (

@@ -9,7 +9,9 @@ ground-truth topics into the graph, either at the bag's pace times ``--rate`` or
 makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver` plays and records).
 ``--record OUT.mcap`` writes every output topic, with its type, to an MCAP file. The run ends at
 the bag's end or on Ctrl-C, and the child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if
-they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`). Every child
+they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`), and so is
+one that stops answering: silent on ``/diagnostics`` for 1.5 s, it is killed and restarted
+(:mod:`gldt_ros.launcher.heartbeat`). Every child
 dies with ``pipeline``: a ``kill -9`` of it sends them SIGTERM (Linux parent-death signal,
 :func:`spawn`), and the recording keeps everything up to the last second
 (:class:`gldt_core.io.mcap_file.McapWriter`).
@@ -46,6 +48,7 @@ from pathlib import Path
 from typing import Any
 
 from gldt_ros.interface.graph import NODES, default_params_file
+from gldt_ros.launcher.heartbeat import Heartbeats
 from gldt_ros.runtime.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.runtime.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, background_executor, executor_kind
 from gldt_ros.runtime.heap_trim import DEFAULT_PERIOD_S, HEAP_TRIM_PERIOD_ENV, start_heap_trimming
@@ -187,7 +190,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--max-restarts",
         type=int,
         default=5,
-        help="restarts of a node that dies after start-up (0: stop the graph instead)",
+        help="restarts of a node that dies or stops answering after start-up (0: stop the graph instead)",
     )
     parser.add_argument(
         "--default-malloc",
@@ -365,8 +368,19 @@ def spawn(command: list[str], **options: Any) -> subprocess.Popen[bytes]:
     return _SPAWNER.popen(command, **options)
 
 
+#: Seconds between killing a node that hung and starting its replacement. A process stopped mid-run
+#: (SIGSTOP) and replaced at once often left the new one deaf to an input for good (the lockstep
+#: replay stalled in 15 of 22 runs with a SIGSTOPped tracker); with a pause of 0.2 to 6 s between
+#: kill and start, 24 of 24 went on (``docs/experiment-log.md``, 2026-12-03). A node that died by
+#: itself is restarted at once.
+HUNG_RESTART_PAUSE_S = 0.5
+
+
 class NodeProcesses:
-    """The child node processes: start, supervise (restart the ones that die), stop.
+    """The child node processes: start, supervise (restart the ones that die or hang), stop.
+
+    A node hangs when its heartbeat, its periodic ``/diagnostics`` status, stops (:attr:`heartbeats`,
+    fed by the driver): it is killed, then restarted like a node that died.
 
     While supervising it keeps one warm spare (:mod:`gldt_ros.runtime.spare`, unless ``--no-spare``): an
     interpreter with the node modules imported, which becomes the first node that dies, so a
@@ -384,6 +398,8 @@ class NodeProcesses:
         # left a lock file too young for it to be told from a process that is starting up.
         self._segments_due: float | None = None
         self._lock = threading.Lock()
+        #: When each node's current process last sent its status (``GraphDriver`` tells it).
+        self.heartbeats = Heartbeats()
         for name in NODES:
             self._start(name)
 
@@ -395,12 +411,14 @@ class NodeProcesses:
                 spare.stdin.write(request.encode())
                 spare.stdin.close()
                 self.processes[name] = spare
+                self.heartbeats.started(name, spare.pid)
                 print(f"pipeline: started {name} (pid {spare.pid}, the warm spare)", flush=True)
                 return
             except OSError:
                 self._discard_spare(spare)  # it died meanwhile; start from scratch
         process = spawn(node_command(name, self.args), env=node_environment(self.args.tune_malloc, self.args.executor))
         self.processes[name] = process
+        self.heartbeats.started(name, process.pid)
         print(f"pipeline: started {name} (pid {process.pid})", flush=True)
 
     def keep_spare(self) -> None:
@@ -447,7 +465,8 @@ class NodeProcesses:
             ]
 
     def supervise(self, before_restart: Callable[[str], None] | None = None) -> list[str]:
-        """Restart every node that died (once start-up is over), at most ``--max-restarts`` times each.
+        """Restart every node that died (once start-up is over), at most ``--max-restarts`` times each;
+        a node that hangs (:meth:`_kill_silent`) is killed first, then restarted the same way.
 
         A node dying is a fault to survive, not a reason to stop the graph: the others keep their
         state and the restarted node rejoins through DDS discovery. ``before_restart(name)`` runs
@@ -458,11 +477,14 @@ class NodeProcesses:
         with self._lock:
             if not self.supervising:
                 return []
+            hung = self._kill_silent()
             dying = [
                 name
                 for name, process in self.processes.items()
                 if process.poll() is not None and self.restarts[name] < self.args.max_restarts
             ]
+        if any(name in hung for name in dying):
+            time.sleep(HUNG_RESTART_PAUSE_S)
         for name in dying:
             if before_restart is not None:
                 try:
@@ -477,7 +499,8 @@ class NodeProcesses:
                 self.restarts[name] += 1
                 code = self.processes[name].returncode
                 attempt = f"{self.restarts[name]}/{self.args.max_restarts}"
-                print(f"pipeline: node {name} exited with code {code}; restarting ({attempt})", flush=True)
+                if name not in hung:  # a hung node was announced when killed
+                    print(f"pipeline: node {name} exited with code {code}; restarting ({attempt})", flush=True)
                 self._start(name)
                 self._spare_due = time.monotonic() + self.args.spare_delay
                 restarted.append(name)
@@ -486,6 +509,29 @@ class NodeProcesses:
             report_removed_segments()
             self._segments_due = time.monotonic() + MIN_AGE_S
         return restarted
+
+    def _kill_silent(self) -> set[str]:
+        """SIGKILL every running node whose heartbeat stopped (a stopped process ignores SIGTERM
+        until continued), so that it is restarted like one that died, and say so; return them. One
+        with no restart left is killed too, and is dead for good (:meth:`dead`)."""
+        hung: set[str] = set()
+        for name, silent_s in self.heartbeats.silent().items():
+            process = self.processes[name]
+            if process.poll() is not None:
+                continue  # it died: restarted as such
+            if self.restarts[name] < self.args.max_restarts:
+                then = f"killing and restarting ({self.restarts[name] + 1}/{self.args.max_restarts})"
+            else:
+                then = "killing it, no restart left"
+            print(f"pipeline: node {name} sent no heartbeat for {silent_s:.1f} s; {then}", flush=True)
+            process.kill()
+            try:
+                process.wait(timeout=2.0)
+            except subprocess.TimeoutExpired:
+                print(f"pipeline: node {name} survived SIGKILL for 2 s", flush=True)
+                continue
+            hung.add(name)
+        return hung
 
     def _clean_segments_if_due(self) -> None:
         """Look again for segments of nodes that died, once their lock files are old enough to be
@@ -592,6 +638,7 @@ def main(argv: Sequence[str] | None = None) -> int:
                 executor.add_node(node)
         else:
             children = NodeProcesses(args)
+            driver.heartbeats = children.heartbeats
         spin_thread.start()
         expected = [f"{args.namespace.strip('/')}/{n}".strip("/") for n in NODES]
         if not driver.wait_for_nodes(expected, args.startup_timeout, lambda: children.dead() if children else []):

@@ -56,6 +56,7 @@ from gldt_ros.interface.graph_links import (
     reporting_nodes_missing,
 )
 from gldt_ros.launcher.bag_io import message_class
+from gldt_ros.launcher.heartbeat import Heartbeats
 from gldt_ros.runtime.node_base import STATUS_NAME_PREFIX
 
 #: Subscriptions each node creates last, once its models and state are ready: the graph is up when
@@ -294,12 +295,16 @@ class GraphDriver(Node):
         # Restarted nodes the lockstep replay has not relinked yet: name -> endpoint ids of the
         # dead process, which peers keep seeing until its DDS lease runs out.
         self._restarted: dict[str, dict[str, set[bytes]]] = {}
+        #: Told of every status received: the supervisor's watch on the node processes (``pipeline`` sets it).
+        self.heartbeats: Heartbeats | None = None
 
     def _on_diagnostics(self, array: DiagnosticArray) -> None:
         for status in array.status:
             if status.name.startswith(STATUS_NAME_PREFIX) and status.hardware_id == self.get_namespace():
                 with self._statuses_lock:
                     self._statuses[status.name[len(STATUS_NAME_PREFIX) :]] = status
+                if self.heartbeats is not None:
+                    self.heartbeats.note_status(status.name[len(STATUS_NAME_PREFIX) :], status.values)
 
     def node_statuses(self) -> dict[str, dict[str, str]]:
         """The latest ``/diagnostics`` key/values of each node of this graph (``inputs``, ...)."""

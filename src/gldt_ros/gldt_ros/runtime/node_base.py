@@ -15,6 +15,8 @@ tracker's "no valid camera_info").
 The diagnostics also carry how many peers each of the node's topics has matched
 (:mod:`gldt_ros.interface.graph_links`), republished as soon as that changes: it is how the
 ``pipeline`` command knows the graph is connected end to end before it sends the first frame.
+The periodic status is also the node's heartbeat, with its pid and ``diagnostics_period``: the
+``pipeline`` command restarts a node that stops sending it (:mod:`gldt_ros.launcher.heartbeat`).
 
 Every timer of these nodes runs on the steady clock, not on ROS time: the diagnostics, the link
 checks and the scheduler's report timeout are about the process, and with ``use_sim_time`` a
@@ -28,6 +30,7 @@ package (executor, heap trimming, DDS profile, stack dumps, bounded teardown) an
 
 from __future__ import annotations
 
+import os
 import time
 from collections import deque
 from collections.abc import Callable
@@ -42,6 +45,7 @@ from gldt_core.system.stamps import StaleMessage
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.graph_links import link_key_values, own_link_counts, parse_link_counts
 from gldt_ros.interface.params import SCHEMA, ParamSpec
+from gldt_ros.launcher.heartbeat import PERIOD_KEY, PID_KEY
 from gldt_ros.runtime.dds_profile import use_frames_profile_if_shipped
 from gldt_ros.runtime.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_node
 from gldt_ros.runtime.heap_trim import start_heap_trimming, trim_period_from_env
@@ -216,6 +220,9 @@ class GldtNode(Node):
                 KeyValue(key="processing_time_ms", value=f"{mean_ms:.2f}"),
                 KeyValue(key="inputs", value=str(self.frames_in)),
                 KeyValue(key="dropped", value=str(self.frames_dropped)),
+                # The status is the node's heartbeat: pipeline restarts a process that goes silent.
+                KeyValue(key=PID_KEY, value=str(os.getpid())),
+                KeyValue(key=PERIOD_KEY, value=f"{float(self.param('diagnostics_period')):g}"),
                 *[KeyValue(key=key, value=str(total)) for key, total in self.events.items()],
                 *[KeyValue(key=f"warning:{key}", value=text) for key, text in self._warnings.items()],
                 *link_key_values(links),
