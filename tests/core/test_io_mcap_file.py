@@ -111,7 +111,7 @@ def _graph_output(msgtype: str, frame: int) -> bytes:
     stamp = store.types["builtin_interfaces/msg/Time"](sec=frame, nanosec=7)
     header = store.types["std_msgs/msg/Header"](stamp=stamp, frame_id="camera")
     if msgtype == TRACKS:
-        message = store.types[TRACKS](header=header, frame_index=frame, tracks=[])
+        message = store.types[TRACKS](header=header, frame_index=frame, source=0, tracks=[])
     else:
         message = store.types[DETECTIONS](
             header=header, frame_index=frame, mode=0, processing_time=0.0, detections=[], rois=[]
@@ -260,3 +260,31 @@ def _read_until_damage(path: Path) -> list[tuple[str, int, bytes]]:
     except McapDamageError:
         pass
     return read
+
+
+def test_fields_after_the_header_are_read_from_the_bytes_as_rosbags_writes_them() -> None:
+    """``after_header_fields`` and ``header_frame_id`` against the typestore's own serialisation,
+    for frame_ids of every length modulo the alignment and both byte orders."""
+    from dataclasses import replace
+
+    from gldt_core.io.cdr import after_header_fields, header_frame_id
+    from gldt_core.io.ros_types import typestore
+
+    store = typestore()
+    template = store.types["gldt_msgs/msg/TrackArray"]
+    header_type, time_type = store.types["std_msgs/msg/Header"], store.types["builtin_interfaces/msg/Time"]
+    for frame_id in ("", "c", "cam", "camera", "camera_optical", "gldt_warm_up"):
+        for source in (0, 2, 3):
+            message = template(
+                header=header_type(stamp=time_type(sec=12, nanosec=345), frame_id=frame_id),
+                frame_index=2**40 + 7,
+                source=source,
+                tracks=[],
+            )
+            for little_endian in (True, False):
+                data = bytes(store.serialize_cdr(message, "gldt_msgs/msg/TrackArray", little_endian=little_endian))
+                assert after_header_fields(data, "QB") == (2**40 + 7, source)
+                assert header_frame_id(data) == frame_id
+            assert replace(message, source=source).source == source
+    with pytest.raises(ValueError):
+        after_header_fields(b"\x00\x01\x00\x00" + b"\x00" * 12, "QB")

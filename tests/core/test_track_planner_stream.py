@@ -160,3 +160,44 @@ def test_state_codes_match_the_track_message() -> None:
     text = (REPO_ROOT / "msg_defs" / "gldt_msgs" / "msg" / "Track.msg").read_text(encoding="utf-8")
     for name, code in STATE_CODES.items():
         assert f"uint8 STATE_{name.upper()} = {code}" in text
+
+
+def test_a_frame_no_detector_measured_is_the_tracks_prediction_and_not_a_miss() -> None:
+    """Every other frame skipped (as the graph does while the global detector is busy): the
+    skipped frames hold every track at the filter's prediction for their time, in its last state,
+    and the tracks come out exactly as if the skipped frames had never existed."""
+    frames = [np.array([target(i), target(i, x0=700.0, vx=-60.0, y=420.0)]) for i in range(30)]
+    tracker, stream = build_tracker(SystemConfig(), SIZE), PlannerStream()
+    peer, peer_stream = build_tracker(SystemConfig(), SIZE), PlannerStream()
+    for index, dets in enumerate(frames):
+        t = index / FPS
+        if index >= 10 and index % 2:
+            before = [(tr.track_id, tr.state, tr.frames_since_update, tr.kf_t) for tr in tracker.tracks]
+            entries = stream.predicted(tracker.tracks, t)
+            assert [(tr.track_id, tr.state, tr.frames_since_update, tr.kf_t) for tr in tracker.tracks] == before
+            predicted = {int(row[4]): row[:4] for row in tracker.predict(t)}
+            assert {e.track_id for e in entries} == set(predicted) and len(entries) == 2
+            for entry in entries:
+                x1, y1, x2, y2 = predicted[entry.track_id]
+                assert entry.state == "confirmed" and entry.frames_since_update == 0
+                assert entry.center_x == pytest.approx((x1 + x2) / 2) and entry.width == pytest.approx(x2 - x1)
+            continue
+        probabilities = np.tile([0.8, 0.15, 0.05], (len(dets), 1))
+        rows = np.asarray(tracker.update(dets, t), dtype=np.float64).reshape(-1, 6)
+        stream.step(tracker.tracks, t, rows, dets, probabilities)
+        peer_rows = np.asarray(peer.update(dets, t), dtype=np.float64).reshape(-1, 6)
+        peer_stream.step(peer.tracks, t, peer_rows, dets, probabilities)
+        np.testing.assert_array_equal(rows, peer_rows)
+
+
+def test_a_predicted_frame_closes_the_ids_a_restart_dropped() -> None:
+    tracker = build_tracker(SystemConfig(), SIZE)
+    stream = PlannerStream()
+    dets = np.array([target(0)])
+    for index in range(3):
+        rows = np.asarray(tracker.update(np.array([target(index)]), index / FPS), dtype=np.float64).reshape(-1, 6)
+        stream.step(tracker.tracks, index / FPS, rows, dets, np.tile([0.8, 0.15, 0.05], (1, 1)))
+    tracker.reset()
+    stream.restart()
+    closing = stream.predicted(tracker.tracks, 3 / FPS)
+    assert [e.state for e in closing] == ["removed"]

@@ -1,7 +1,9 @@
 """The ROS graph survives bad input and a node dying mid-replay, and loses no recorded data.
 
 Bad camera input (garbage JPEG, unsupported encoding, empty or short images, a resolution change,
-NaN camera_info) costs the node that frame only; frames after it are still tracked. A node
+NaN camera_info) costs the node that frame only; frames after it are still tracked. A frame that
+cannot be decoded is answered at once, with the tracks' predictions (``SOURCE_UNREADABLE``), so a
+lockstep player never waits for it. A node
 killed mid-replay is restarted by ``pipeline``, the graph answers again, and the recording stays
 readable with every message it received.
 """
@@ -141,8 +143,10 @@ def test_bad_raw_images_cost_only_that_frame(raw_graph: InProcessGraph) -> None:
         lambda: graph.raw.publish(raw_message(np.zeros((0, 0, 3), np.uint8), "bgr8", graph.header())),
     ]
     for publish in bad_inputs:
-        graph.send_and_wait(publish, expect_answer=False)
+        graph.send_and_wait(publish, expect_answer=True)
+        assert graph.tracks[-1].source == graph.tracks[-1].SOURCE_UNREADABLE
     assert graph.buffer.frames_dropped == dropped + len(bad_inputs)
+    assert graph.buffer.events["frames_unreadable"] == len(bad_inputs)
     # The node is still up, and every supported encoding is processed after the bad frames.
     for encoding, payload in (("bgr8", frame), ("rgb8", frame[:, :, ::-1].copy()), ("mono8", frame[:, :, 0].copy())):
         graph.send_and_wait(partial(graph.raw.publish, raw_message(payload, encoding, graph.header())), True)
@@ -154,9 +158,13 @@ def test_bad_camera_input_costs_only_that_frame(graph: InProcessGraph) -> None:
     frame = sky(640, 480)
     graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(frame, graph.header())), True)
     dropped = graph.buffer.frames_dropped
-    graph.send_and_wait(lambda: graph.compressed.publish(_garbage_jpeg(graph.header())), expect_answer=False)
+    graph.send_and_wait(
+        lambda: graph.compressed.publish(_garbage_jpeg(graph.header())), expect_answer=True, timeout_s=2.0
+    )
+    assert graph.tracks[-1].source == graph.tracks[-1].SOURCE_UNREADABLE
     assert graph.buffer.frames_dropped == dropped + 1
     graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(frame, graph.header())), True)
+    assert graph.tracks[-1].source == graph.tracks[-1].SOURCE_GLOBAL
     # A resolution change mid-stream re-initialises and goes on.
     graph.send_and_wait(lambda: graph.compressed.publish(jpeg_message(sky(1280, 720), graph.header())), True)
     # Unusable camera_info: one WARN in the tracker's diagnostics, bearings invalid, tracks flow.
@@ -234,7 +242,7 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
         and "the warm spare" in run.lines_with(f"started {victim}")[1]
     ), "the restart should use the warm spare (gldt_ros.runtime.spare):\n" + text
     assert len(run.times_of(f"{victim} ready")) == 2, f"{victim} should have come up twice (start + restart):\n" + text
-    summary = run.lines_with("replayed")[0]
+    summary = run.lines_with("pipeline: sent ")[0]
     received = int(summary.split(" track messages")[0].rsplit(" ", 1)[1])
     stamps_ns = [stamp for stamp, _ in recorded_track_times(record)]
     assert len(stamps_ns) == received, "the recording lost track messages"

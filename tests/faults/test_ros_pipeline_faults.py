@@ -108,7 +108,7 @@ def test_sigkill_of_pipeline_keeps_the_recording_and_ends_its_nodes(tmp_path: Pa
         time.sleep(0.5)  # the kill lands between two of the writer's flushes, mid-replay
         started = {int(line.rsplit("(pid ", 1)[1].split(")")[0].split(",")[0]) for line in run.lines if "(pid " in line}
         pids = child_pids(run.process.pid) | started
-        assert run.process.poll() is None and not any("replayed" in line for line in run.lines), (
+        assert run.process.poll() is None and not any(line.startswith("pipeline: sent ") for line in run.lines), (
             "the replay ended before the kill; it must land mid-replay:\n" + run.text
         )
         killed_ns = time.time_ns()
@@ -145,7 +145,7 @@ def test_ctrl_c_of_pipeline_stops_cleanly_and_keeps_the_recording(tmp_path: Path
             assert time.monotonic() < deadline, "no track recorded after 120 s:\n" + run.text
             time.sleep(0.05)
         started = {int(line.rsplit("(pid ", 1)[1].split(")")[0].split(",")[0]) for line in run.lines if "(pid " in line}
-        assert run.process.poll() is None and not any("replayed" in line for line in run.lines), (
+        assert run.process.poll() is None and not any(line.startswith("pipeline: sent ") for line in run.lines), (
             "the replay ended before the interrupt; it must land mid-replay:\n" + run.text
         )
         time.sleep(1.0)  # well into the paced replay (150 frames at 30 Hz take 5 s)

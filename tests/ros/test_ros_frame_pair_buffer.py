@@ -1,8 +1,11 @@
 """frame_pair_buffer on a GD stretch: it letterboxes a frame while its decision is pending, and it
-leaves the previous image out of a pair once the global detector has answered that frame."""
+leaves the previous image out of a pair once the global detector has answered that frame (the
+planned skip off, as in lockstep); with the planned skip on, a GLOBAL frame decided while a pair is
+in flight is announced as skipped, after that pair's answer and in frame order with LOCAL crops."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -16,22 +19,39 @@ from rclpy.context import Context  # noqa: E402
 WIDTH, HEIGHT = 640, 512
 
 
-@pytest.fixture
-def buffer() -> Iterator[Any]:
-    """A frame_pair_buffer whose pair and crop publishers record what they would send."""
+def recording_buffer(skip_when_busy: bool) -> Iterator[Any]:
+    """A frame_pair_buffer whose pair, crop and skip-notice publishers record what they would send
+    (``sent`` holds all three in order)."""
+    from rclpy.parameter import Parameter
+
     from gldt_ros.nodes.frame_pair_buffer import FramePairBuffer
 
     context = Context()
     rclpy.init(context=context)
     try:
-        node: Any = FramePairBuffer(context=context)  # given the two lists below
-        node.sent_pairs, node.sent_crops = [], []
-        node.pairs.publish = node.sent_pairs.append
-        node.crops.publish = node.sent_crops.append
+        overrides = [Parameter("skip_global_when_busy", value=skip_when_busy)]
+        node: Any = FramePairBuffer(context=context, parameter_overrides=overrides)  # given the lists below
+        node.sent_pairs, node.sent_crops, node.sent_skips, node.sent = [], [], [], []
+        for publisher, kept in (
+            (node.pairs, node.sent_pairs),
+            (node.crops, node.sent_crops),
+            (node.skips, node.sent_skips),
+        ):
+            publisher.publish = lambda message, kept=kept: (kept.append(message), node.sent.append(message))
         yield node
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+@pytest.fixture
+def buffer() -> Iterator[Any]:
+    yield from recording_buffer(skip_when_busy=False)
+
+
+@pytest.fixture
+def skipping_buffer() -> Iterator[Any]:
+    yield from recording_buffer(skip_when_busy=True)
 
 
 def camera_image(index: int, stream: int = 0) -> Any:
@@ -108,7 +128,7 @@ def test_a_frame_is_letterboxed_ahead_only_in_a_gd_stretch_and_the_pair_is_the_s
 
     images = [camera_image(i) for i in range(4)]
     buffer.on_image(images[0])
-    assert not prepared_ahead(buffer), "no decision yet: nothing to guess from"
+    assert prepared_ahead(buffer) == {0}, "a stream starts in GLOBAL: its first frame is letterboxed ahead"
     decide(buffer, 0, images[0], SchedulerState.MODE_GLOBAL)
     buffer.on_image(images[1])
     assert prepared_ahead(buffer) == {1}
@@ -134,3 +154,64 @@ def test_frames_letterboxed_ahead_leave_with_their_frames(buffer: Any) -> None:
     assert len(buffer._frames) == PENDING_FRAMES
     # Every frame after the GLOBAL decision was letterboxed ahead; only the buffered ones are held.
     assert prepared_ahead(buffer) == set(buffer._frames)
+
+
+def test_a_global_frame_decided_while_a_pair_is_in_flight_is_skipped_by_plan(skipping_buffer: Any) -> None:
+    from gldt_msgs.msg import DetectionArray, FramePair, RoiCrops, SchedulerState
+
+    buffer = skipping_buffer
+    images = [camera_image(i) for i in range(6)]
+    modes = [SchedulerState.MODE_GLOBAL] * 3 + [SchedulerState.MODE_LOCAL, SchedulerState.MODE_GLOBAL]
+    for index, mode in enumerate(modes):
+        buffer.on_image(images[index])
+        decide(buffer, index, images[index], mode)
+    # Frame 0's pair is in flight: frames 1, 2 and 4 are skipped by plan, frame 3's crops go out.
+    kinds = [(type(m).__name__, int(m.frame_index)) for m in buffer.sent]
+    assert kinds == [
+        (FramePair.__name__, 0),
+        (DetectionArray.__name__, 1),
+        (DetectionArray.__name__, 2),
+        (RoiCrops.__name__, 3),
+        (DetectionArray.__name__, 4),
+    ], kinds
+    assert all(m.mode == DetectionArray.MODE_SKIPPED and not m.detections for m in buffer.sent_skips)
+    assert buffer.events["frames_skipped"] == 3
+    answer(buffer, 0, camera_image(0, stream=7))  # another stream's frame 0 frees nothing
+    assert buffer.global_detector_busy()
+    answer(buffer, 0, images[0])
+    assert not buffer.global_detector_busy()
+    # The next GLOBAL frame's pair goes out, paired with frame 4, which the detector never saw.
+    buffer.on_image(images[5])
+    decide(buffer, 5, images[5], SchedulerState.MODE_GLOBAL)
+    pair = buffer.sent[-1]
+    assert isinstance(pair, FramePair) and pair.frame_index == 5 and pair.previous_frame_index == 4
+    assert pair.previous.height > 0
+
+
+def test_an_unanswered_pair_stops_counting_as_busy_after_the_answer_timeout(skipping_buffer: Any) -> None:
+    from gldt_msgs.msg import FramePair, SchedulerState
+
+    buffer = skipping_buffer
+    buffer.answer_timeout_s = 0.05
+    images = [camera_image(i) for i in range(2)]
+    buffer.on_image(images[0])
+    decide(buffer, 0, images[0], SchedulerState.MODE_GLOBAL)  # never answered: a detector that died
+    time.sleep(0.1)  # past the timeout
+    buffer.on_image(images[1])
+    decide(buffer, 1, images[1], SchedulerState.MODE_GLOBAL)
+    assert [type(m) for m in buffer.sent] == [FramePair, FramePair]
+
+
+def test_an_undecodable_image_is_announced_at_once_and_counted(skipping_buffer: Any) -> None:
+    from gldt_msgs.msg import DetectionArray
+
+    buffer = skipping_buffer
+    broken = camera_image(0)
+    broken.data = bytes(broken.data[:100])
+    with pytest.raises(ValueError):
+        buffer.on_image(broken)
+    (notice,) = buffer.sent
+    assert notice.mode == DetectionArray.MODE_UNREADABLE and notice.frame_index == 0
+    assert buffer.events["frames_unreadable"] == 1
+    buffer.on_image(camera_image(1))
+    assert 1 in buffer._frames, "the next frame keeps its own index"

@@ -123,15 +123,16 @@ def test_a_scheduler_counts_the_stale_frames_it_skips_after_a_report_timeout(con
 
 
 def test_the_buffer_counts_the_pairs_the_global_detector_skipped(context: Context) -> None:
-    """Three GLOBAL frames' pairs go out; the detector answers only the third (its queue keeps the
-    newest pair): two were skipped."""
+    """With the planned skip off (every GLOBAL frame's pair is sent), three pairs go out after the
+    first; the detector answers only the third (its queue keeps the newest pair): two were skipped."""
     from gldt_msgs.msg import DetectionArray, SchedulerState
+    from rclpy.parameter import Parameter
     from std_msgs.msg import Header
 
     from gldt_ros.interface.convert import bgr_to_image
     from gldt_ros.nodes.frame_pair_buffer import FramePairBuffer
 
-    node = FramePairBuffer(context=context)
+    node = FramePairBuffer(context=context, parameter_overrides=[Parameter("skip_global_when_busy", value=False)])
     try:
         node.pairs.publish = lambda _pair: None
         sent = published(node)

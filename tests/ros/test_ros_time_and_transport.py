@@ -176,13 +176,17 @@ def write_bag(path: Path, *, info_delay_ns: int = 0, transports: tuple[str, ...]
 
 
 class SentLog:
-    """Stands in for the player's publishers: records (topic, stamp [ns]) in publishing order."""
+    """Stands in for the player's publishers: records (topic, stamp [ns]) in publishing order, the
+    warm-up frame apart (in :attr:`warm_ups`; ``on_warm_up`` answers it, as the graph would)."""
 
-    def __init__(self) -> None:
+    def __init__(self, on_warm_up: Any = None) -> None:
         self.sent: list[tuple[str, int]] = []
+        self.warm_ups: list[tuple[str, int]] = []
+        self.on_warm_up = on_warm_up
 
     def publisher(self, topic: str) -> Any:
-        from gldt_core.io.cdr import header_stamp_ns
+        from gldt_core.io.cdr import header_frame_id, header_stamp_ns
+        from gldt_ros.interface.graph import WARM_UP_FRAME_ID
 
         log = self
 
@@ -191,6 +195,11 @@ class SentLog:
                 return 1
 
             def publish(self, data: bytes) -> None:
+                if header_frame_id(data) == WARM_UP_FRAME_ID:
+                    log.warm_ups.append((topic.lstrip("/"), header_stamp_ns(data)))
+                    if log.on_warm_up is not None:
+                        log.on_warm_up()
+                    return
                 log.sent.append((topic.lstrip("/"), header_stamp_ns(data)))
 
         return Publisher()
@@ -220,7 +229,7 @@ def play(bag: Path, *options: str) -> tuple[SentLog, int]:
     from gldt_ros.launcher.replay import GraphDriver, ReplayClock
 
     driver = GraphDriver(parse_args(["--bag", str(bag), *options]))
-    log = SentLog()
+    log = SentLog(on_warm_up=lambda: setattr(driver, "_warm_up_answered", True))
     publishers: dict[str, Any] = {}
     driver._publisher = lambda topic, _type: publishers.setdefault(topic, log.publisher(topic))  # type: ignore[method-assign]
     driver._wait_answer = lambda *_: True  # type: ignore[method-assign]
@@ -233,7 +242,10 @@ def play(bag: Path, *options: str) -> tuple[SentLog, int]:
     finally:
         driver.close()
         driver.destroy_node()
-    assert f"replayed {len(STAMPS_NS)} frames" in summary, summary
+    assert f"sent {len(STAMPS_NS)} frames" in summary, summary
+    # One warm-up frame before the replay (the bag's first image), stamped before the first frame.
+    assert [topic for topic, _ in log.warm_ups] == [IMAGE], log.warm_ups
+    assert log.warm_ups[0][1] < log.of(IMAGE)[0] or log.of(IMAGE)[0] == 0
     return log, started
 
 
@@ -266,6 +278,7 @@ def test_the_player_restamps_to_now_and_keeps_the_intervals(player: None, tmp_pa
 def test_keep_bag_stamps_replays_the_recorded_stamps(player: None, tmp_path: Path) -> None:
     log, _ = play(write_bag(tmp_path / "bag"), "--lockstep", "--keep-bag-stamps")
     assert log.of(IMAGE) == STAMPS_NS
+    assert log.warm_ups[0][1] == max(0, STAMPS_NS[0] - 1_000_000_000)
     assert sorted(set(log.of(INFO))) == STAMPS_NS
 
 
@@ -390,7 +403,7 @@ def test_a_sim_time_replay_onto_a_remapped_camera_topic_completes(tmp_path: Path
         rclpy.shutdown(context=context)
     output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output[-4000:]
-    assert f"replayed {len(bag_stamps)} frames" in output and "0 frames without an answer" in output, output[-4000:]
+    assert f"sent {len(bag_stamps)} frames" in output and "0 frames without an answer" in output, output[-4000:]
     assert f"camera input: CompressedImage on {remapped}" in output, "the remap did not reach frame_pair_buffer"
     tracks = list(iter_recorded(record, "gldt/tracks"))
     assert [stamp_ns(message.header.stamp) for _, message, _ in tracks] == bag_stamps, "--keep-bag-stamps"

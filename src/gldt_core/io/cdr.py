@@ -29,6 +29,18 @@ def header_stamp_ns(cdr: bytes) -> int:
     return seconds * 1_000_000_000 + nanoseconds
 
 
+def header_frame_id(cdr: bytes) -> str:
+    """``header.frame_id`` of a CDR message whose first field is a ``std_msgs/Header``."""
+    order = _stamp_format(cdr)[0]
+    start = ENCAPSULATION_SIZE + 8
+    if len(cdr) < start + 4:
+        raise ValueError(f"CDR message of {len(cdr)} bytes is too short to hold a header")
+    (length,) = struct.unpack_from(order + "I", cdr, start)
+    if length == 0 or len(cdr) < start + 4 + length:
+        raise ValueError(f"CDR message of {len(cdr)} bytes ends inside its header's frame_id")
+    return cdr[start + 4 : start + 3 + length].decode("utf-8", errors="replace")
+
+
 def with_header_stamp(cdr: bytes, stamp_ns: int) -> bytes:
     """Copy of such a message with ``header.stamp`` replaced, patched in the bytes (no
     deserialisation of the image it may carry)."""
@@ -36,3 +48,22 @@ def with_header_stamp(cdr: bytes, stamp_ns: int) -> bytes:
     patched = bytearray(cdr)
     struct.pack_into(_stamp_format(cdr), patched, ENCAPSULATION_SIZE, seconds, nanoseconds)
     return bytes(patched)
+
+
+def after_header_fields(cdr: bytes, fmt: str) -> tuple[int | float, ...]:
+    """The fields right after the ``std_msgs/Header`` of a CDR message, as ``struct`` format
+    ``fmt`` without byte order (e.g. ``"QB"``: a ``uint64`` then a ``uint8``, as ``TrackArray``'s
+    ``frame_index`` and ``source``), each aligned as CDR aligns it (to its own size, counted from
+    the end of the encapsulation header); ValueError when the message is too short."""
+    order = _stamp_format(cdr)[0]
+    (length,) = struct.unpack_from(order + "I", cdr, ENCAPSULATION_SIZE + 8)
+    offset = 8 + 4 + length  # stamp, frame_id's length and bytes (its terminating NUL included)
+    values = []
+    for code in fmt:
+        size = struct.calcsize(code)
+        offset += -offset % size
+        if ENCAPSULATION_SIZE + offset + size > len(cdr):
+            raise ValueError(f"CDR message of {len(cdr)} bytes ends inside its fields after the header")
+        values.append(struct.unpack_from(order + code, cdr, ENCAPSULATION_SIZE + offset)[0])
+        offset += size
+    return tuple(values)

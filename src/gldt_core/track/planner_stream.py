@@ -10,6 +10,11 @@ the stream holds
 * once, a final ``removed`` entry for each id the tracker gave up (expired, merged into a
   duplicate, or dropped by a restart of the stream), at its last prediction.
 
+A frame no detector measured (:meth:`PlannerStream.predicted`: the graph skipped it by plan
+because the global detector was still busy) gets every live track at its prediction for that
+frame's time, in the state of the last measured frame: the tracker is not updated, so a skip is
+never counted as a miss.
+
 From its first entry to its ``removed`` one an id is in every frame: no holes. Tentative tracks
 (one hit so far) are not in the stream. Ids are never reused within one stream: after a restart
 (the tracker is re-initialised and its ids start again at 1) the published ids continue above the
@@ -31,6 +36,7 @@ import numpy as np
 
 from gldt_core.camera import CameraModel, bearing, bearing_covariance, bearing_rate, line_of_sight
 from gldt_core.track.class_evidence import ClassEvidence
+from gldt_core.track.kalman import predicted_many
 from gldt_core.track.looming import NO_ESTIMATE, LoomingEstimate, LoomingTracks
 from gldt_core.track.state import Track, TrackState
 
@@ -121,6 +127,25 @@ class PlannerStream:
         entries = [
             self._entry(tr, _STREAM_STATE[tr.state], estimates[pid], camera) for tr, (pid, _) in zip(live, sizes)
         ]
+        return self._publish(live, entries)
+
+    def predicted(self, tracks: Sequence[Track], t: float, camera: CameraModel | None = None) -> list[PlannerTrack]:
+        """The entries of a frame at ``t`` that no detector measured: every live track of the
+        tracker (which was not updated) at its filter's prediction for ``t``, box, velocity and
+        covariance, in its last state; the time to collision coasts. Ids removed by a restart
+        since the last frame close here, as in :meth:`step`."""
+        live = [tr for tr in tracks if tr.state in _STREAM_STATE]
+        means, covariances = predicted_many([tr.kf for tr in live], np.array([t - tr.kf_t for tr in live]))
+        estimates = self.looming.update(t, [(self.published_id(tr), None) for tr in live])
+        entries = [
+            self._entry(tr, _STREAM_STATE[tr.state], estimates[self.published_id(tr)], camera, mean, covariance)
+            for tr, mean, covariance in zip(live, means, covariances)
+        ]
+        return self._publish(live, entries)
+
+    def _publish(self, live: list[Track], entries: list[PlannerTrack]) -> list[PlannerTrack]:
+        """Note ``entries`` as each live track's last, close the ids no longer live; the frame's
+        entries followed by the ``removed`` ones."""
         now = {tr.track_id for tr in live}
         for track_id, (track, last) in list(self._open.items()):
             if track_id not in now:
@@ -145,9 +170,18 @@ class PlannerStream:
         """The id ``track`` is published with (the tracker's, above the ids before the last restart)."""
         return track.track_id + self._id_offset
 
-    def _entry(self, track: Track, state: str, looming: LoomingEstimate, camera: CameraModel | None) -> PlannerTrack:
-        cx, cy, w, h, vx, vy = track.kf.mean[:6].tolist()
-        covariance = track.covariance
+    def _entry(
+        self,
+        track: Track,
+        state: str,
+        looming: LoomingEstimate,
+        camera: CameraModel | None,
+        mean: np.ndarray | None = None,
+        covariance: np.ndarray | None = None,
+    ) -> PlannerTrack:
+        """The entry of ``track``: at its filter's state, or at ``mean`` / ``covariance`` (a prediction)."""
+        cx, cy, w, h, vx, vy = (track.kf.mean if mean is None else mean)[:6].tolist()
+        covariance = track.covariance if covariance is None else np.array(covariance)
         class_id, confidence = self.class_evidence.label(track.track_id)
         return PlannerTrack(
             track_id=self.published_id(track),

@@ -83,7 +83,7 @@ def graph_run(bag: Path, extra: list[str]) -> str:
     if pipeline is None:
         raise SystemExit("bench_graph: `pipeline` not on PATH; run through scripts/with_ros_env.sh")
     completed = subprocess.run([pipeline, "--bag", str(bag), *extra], capture_output=True, text=True, timeout=1800)
-    summary = [line for line in completed.stdout.splitlines() if "replayed" in line]
+    summary = [line for line in completed.stdout.splitlines() if line.startswith("pipeline: sent ")]
     # 3: frames lost or unanswered (a paced replay that outran the core); the summary counts them.
     if completed.returncode not in (0, 3) or not summary:
         raise SystemExit(f"bench_graph: pipeline failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
@@ -91,7 +91,7 @@ def graph_run(bag: Path, extra: list[str]) -> str:
 
 
 def replay_seconds(summary: str) -> float:
-    """The wall time of a replay from ``pipeline``'s summary line ("... replayed N frames in T s ...")."""
+    """The wall time of a replay from ``pipeline``'s summary line ("pipeline: sent N frames in T s ...")."""
     match = re.search(r"in ([0-9.]+) s", summary)
     if match is None:
         raise SystemExit(f"bench_graph: no replay time in pipeline's summary {summary!r}")

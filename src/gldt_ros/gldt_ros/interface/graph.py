@@ -29,6 +29,13 @@ NODES: dict[str, str] = {
     "jptrack_tracker": "gldt_ros.nodes.jptrack_tracker",
 }
 
+#: ``header.frame_id`` of the warm-up frame ``pipeline --bag`` sends before the replay: a copy of
+#: the bag's first image that runs through every node (first inference, every link's first
+#: message) and leaves no state behind. Each node that keeps state across frames starts afresh
+#: once it has handled it (the buffer after its decision, the scheduler after planning it, the
+#: global detector after its pair, the tracker after answering it), and the recording leaves it out.
+WARM_UP_FRAME_ID = "gldt_warm_up"
+
 #: The parameter file of every node, generated from :mod:`gldt_ros.interface.params`.
 PARAMS_FILE = "gldt.yaml"
 

@@ -82,6 +82,22 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
             "",
             "AM-YOLO ONNX file whose input size the pair is letterboxed to; empty = shipped model",
         ),
+        ParamSpec(
+            "skip_global_when_busy",
+            True,
+            "Keep up by plan: one detector request in flight, later frames' in frame order behind it, "
+            "and a GLOBAL frame decided while the global detector is busy skipped, answered by the "
+            "tracker with predictions (TrackArray.SOURCE_PREDICTED) instead of queueing or vanishing; "
+            "false = send every request at once (lockstep)",
+        ),
+        ParamSpec(
+            "global_answer_timeout",
+            0.5,
+            "Seconds after which an unanswered detector request no longer holds later frames back "
+            "(it was lost, or the detector restarted)",
+            0.01,
+            60.0,
+        ),
         _DIAG_PERIOD,
     ),
     "global_detector": (
@@ -190,6 +206,14 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ),
         _CAMERA_QOS,
         ParamSpec("publish_markers", True, "Publish visualization_msgs/MarkerArray while someone subscribes"),
+        ParamSpec(
+            "input_order_timeout",
+            0.5,
+            "Seconds the tracker waits for an earlier frame's detections before it answers later frames "
+            "(frames are answered in camera order; a detector that restarted or dropped a pair is given up)",
+            0.01,
+            60.0,
+        ),
         _DIAG_PERIOD,
     ),
 }

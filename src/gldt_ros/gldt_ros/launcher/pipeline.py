@@ -256,9 +256,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
-#: Parameter overrides a lockstep replay needs: the scheduler waits for LOCAL reports, and the
-#: buffer receives the player's reliable camera stream without drops.
-LOCKSTEP_OVERRIDES = {"mode_scheduler": ["-p", "lockstep:=true"], "frame_pair_buffer": ["-p", "camera_qos:=reliable"]}
+#: Parameter overrides of a bag replay (and of any lockstep run): the player publishes reliably, so
+#: the camera input takes every frame it sends (a best-effort reader may lose one).
+BAG_OVERRIDES = {name: ["-p", "camera_qos:=reliable"] for name in ("frame_pair_buffer", "jptrack_tracker")}
+#: Parameter overrides a lockstep replay needs besides: the scheduler waits for LOCAL reports, and the
+#: buffer sends every GLOBAL pair (no planned skip: whether the detector still looks busy would
+#: depend on message timing).
+LOCKSTEP_OVERRIDES = {
+    "mode_scheduler": ["-p", "lockstep:=true"],
+    "frame_pair_buffer": ["-p", "skip_global_when_busy:=false"],
+}
 
 
 def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
@@ -273,6 +280,8 @@ def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
     ros_args = ["--ros-args", "--params-file", str(args.params)]
     if name == "frame_pair_buffer" and getattr(args, "image_transport", None):
         ros_args += ["-p", f"image_transport:={args.image_transport}"]
+    if getattr(args, "bag", None) is not None or args.lockstep:
+        ros_args += BAG_OVERRIDES.get(name, [])
     if args.lockstep:
         ros_args += LOCKSTEP_OVERRIDES.get(name, [])
         if name == "mode_scheduler":

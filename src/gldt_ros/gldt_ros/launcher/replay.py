@@ -30,6 +30,7 @@ from pathlib import Path
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from gldt_msgs.msg import TrackArray
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -43,11 +44,11 @@ from gldt_core.io.bag import (
     bag_channel_types,
     bag_messages,
 )
-from gldt_core.io.cdr import header_stamp_ns, with_header_stamp
+from gldt_core.io.cdr import after_header_fields, header_frame_id, header_stamp_ns, with_header_stamp
 from gldt_core.io.mcap_file import McapMessage, McapWriter
 from gldt_core.io.ros_types import typestore
 from gldt_ros.interface import qos, topics
-from gldt_ros.interface.graph import NODES
+from gldt_ros.interface.graph import NODES, WARM_UP_FRAME_ID
 from gldt_ros.interface.graph_links import (
     missing_links,
     node_endpoint_gids,
@@ -117,24 +118,35 @@ def bag_image_transport(bag: Path) -> str | None:
     return "raw" if IMAGE_TYPE in types else None
 
 
-def bag_head(bag: Path, image_type: str) -> tuple[int | None, McapMessage | None]:
-    """``(stamp [ns] of the first image of image_type, the first camera_info)`` of ``bag``, reading
-    no further than both, or :data:`HEAD_IMAGES` images when it has no camera_info near its start."""
-    first_stamp: int | None = None
+def bag_head(bag: Path, image_type: str) -> tuple[McapMessage | None, McapMessage | None]:
+    """``(the first readable image of image_type, the first camera_info)`` of ``bag``, reading no
+    further than both, or :data:`HEAD_IMAGES` images when it has no camera_info near its start."""
+    first_image: McapMessage | None = None
     images = 0
     for message in readable_head(bag_messages(bag, log_time_order=True)):
-        try:
-            stamp = header_stamp_ns(message.data)
-        except ValueError:
-            continue  # unreadable: the replay skips it (and says so)
+        if unreadable_reason(message) is not None:
+            continue  # the replay skips it (and says so)
         if message.msgtype == CAMERA_INFO_TYPE:
-            return first_stamp, message
+            return first_image, message
         if message.msgtype == image_type:
-            first_stamp = stamp if first_stamp is None else first_stamp
+            first_image = first_image or message
             images += 1
             if images >= HEAD_IMAGES:
                 break
-    return first_stamp, None
+    return first_image, None
+
+
+def warm_up_image(image: McapMessage, stamp_ns: int) -> bytes:
+    """CDR bytes of the warm-up frame (:data:`~gldt_ros.interface.graph.WARM_UP_FRAME_ID`): ``image``
+    (the bag's first) with that frame_id and ``stamp_ns``."""
+    from dataclasses import replace
+
+    store = typestore()
+    message = store.deserialize_cdr(image.data, image.msgtype)
+    seconds, nanoseconds = divmod(max(0, stamp_ns), 1_000_000_000)
+    stamp = replace(message.header.stamp, sec=seconds, nanosec=nanoseconds)
+    message = replace(message, header=replace(message.header, stamp=stamp, frame_id=WARM_UP_FRAME_ID))
+    return bytes(store.serialize_cdr(message, image.msgtype))
 
 
 def readable_head(messages: Iterator[McapMessage]) -> Iterator[McapMessage]:
@@ -184,19 +196,32 @@ def frame_ordered(messages: Iterable[McapMessage]) -> Iterator[McapMessage]:
 
 
 def loss_reason(
-    unreadable: int, unreadable_frames: int, damage: str | None, unanswered: int, lockstep: bool
+    unreadable: int, unreadable_frames: int, damage: str | None, unanswered: int, lockstep: bool, undecodable: int = 0
 ) -> str | None:
     """One line saying why a replay lost frames or left them unanswered, or ``None`` when it did
-    neither (``pipeline`` then exits 0, else :data:`LOST_FRAMES_EXIT`)."""
+    neither (``pipeline`` then exits 0, else :data:`LOST_FRAMES_EXIT`). Frames skipped by plan
+    (answered by prediction while the global detector was busy) are the documented degradation,
+    not a loss; ``undecodable`` images, answered the same way, are."""
     reasons = []
     if unreadable:
         reasons.append(f"{unreadable} unreadable bag message(s) skipped ({unreadable_frames} of them frames)")
+    if undecodable:
+        reasons.append(f"{undecodable} image(s) the graph could not decode (answered by prediction)")
     if damage:
         reasons.append(f"the bag ends in damage ({damage})")
     if unanswered:
         how = "given up after --frame-timeout or a restart" if lockstep else "sent but never answered"
         reasons.append(f"{unanswered} frame(s) without tracks ({how})")
     return "; ".join(reasons) or None
+
+
+def answer_source(track_array: bytes) -> int | None:
+    """``source`` of a ``TrackArray`` (CDR bytes): what measured its frame (``SOURCE_*``)."""
+    try:
+        _, source = after_header_fields(track_array, "QB")
+    except ValueError:
+        return None
+    return int(source)
 
 
 class Restamp:
@@ -263,8 +288,12 @@ class GraphDriver(Node):
         self.latencies_s: list[float] = []
         self._answered_cv = threading.Condition()
         self.tracks_received = 0
-        #: Frames this player sent that ``/gldt/tracks`` answered (a paced replay's loss count).
+        #: Frames this player sent that ``/gldt/tracks`` answered (a paced replay's loss count),
+        #: and of them those answered by prediction (``TrackArray.SOURCE_PREDICTED``: skipped by plan).
         self.frames_answered = 0
+        #: Of them, the frames answered by prediction: ``TrackArray.source`` -> count.
+        self.frames_by_source: dict[int, int] = {}
+        self._warm_up_answered = False
         #: Why frames of the last replay were lost or unanswered, in one line, or ``None``.
         self.loss: str | None = None
         #: The damage the last replay's bag ended in, or ``None``.
@@ -362,6 +391,12 @@ class GraphDriver(Node):
         def callback(raw: bytes) -> None:
             now = self.get_clock().now().nanoseconds
             stamp = header_stamp_ns(raw)
+            if header_frame_id(raw) == WARM_UP_FRAME_ID:  # not part of the run: never recorded or counted
+                if topic == topics.TRACKS:
+                    with self._answered_cv:
+                        self._warm_up_answered = True
+                        self._answered_cv.notify_all()
+                return
             if self.recorder is not None:
                 self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
                 with self._answered_cv:
@@ -379,6 +414,9 @@ class GraphDriver(Node):
                     published = self._published_at.pop(stamp, None)
                     if published is not None:
                         self.frames_answered += 1
+                        source = answer_source(raw)
+                        if source is not None:
+                            self.frames_by_source[source] = self.frames_by_source.get(source, 0) + 1
                         self.latencies_s.append(received - published)
                     self._answered_cv.notify_all()
 
@@ -471,16 +509,32 @@ class GraphDriver(Node):
         clock); return a one-line summary."""
         if self.clock is None:
             self.clock = ReplayClock(self)
+        prepare_start = time.monotonic()
         self._prepare_publishers(stop)
+        print(
+            f"pipeline: graph linked to the player in {time.monotonic() - prepare_start:.1f} s; "
+            "replaying (start-up is not counted in the rates and latencies below)",
+            flush=True,
+        )
         frames = 0
+        first_sent: tuple[float, int] | None = None  # (monotonic, bag log time [ns]) of the first frame sent
+        last_sent: tuple[float, int] | None = None
         skipped_topics: set[str] = set()
         waited_out = 0
         unreadable = unreadable_frames = 0
         self.damage = None
         with self._answered_cv:
             self.frames_answered = 0
-        first_image_ns, first_camera_info = bag_head(self.args.bag, self.image_type)
-        restamp = Restamp(first_image_ns, keep=bool(getattr(self.args, "keep_bag_stamps", False)))
+            self.frames_by_source = {}
+        first_image, first_camera_info = bag_head(self.args.bag, self.image_type)
+        keep_stamps = bool(getattr(self.args, "keep_bag_stamps", False))
+        first_image_ns: int | None = None
+        if first_image is not None:
+            first_image_ns = header_stamp_ns(first_image.data)
+            if not stop.is_set():  # stamped 1 s before the first frame (restamped as the replay will be)
+                warm_up_ns = Restamp(first_image_ns, keep_stamps).stamp_ns(first_image_ns) - 1_000_000_000
+                self.warm_up(first_image, warm_up_ns, stop)
+        restamp = Restamp(first_image_ns, keep=keep_stamps)
         camera_info_sent = False
         start_wall = time.monotonic()
         first_log_ns: int | None = None
@@ -542,6 +596,8 @@ class GraphDriver(Node):
                 publisher.publish(data)
                 if message.msgtype in IMAGE_TYPES:
                     frames += 1
+                    last_sent = (time.monotonic(), message.log_time_ns)
+                    first_sent = first_sent or last_sent
                     if self.args.lockstep and last_stamp is not None and not self._wait_answer(last_stamp, stop, dead):
                         waited_out += 1
         except ValueError as error:  # not the bag's damage (_bag_stream ends at that): a message the player cannot send
@@ -554,20 +610,69 @@ class GraphDriver(Node):
         elapsed = time.monotonic() - start_wall
         self.frames_published = frames
         unanswered = waited_out if self.args.lockstep else max(0, frames - self.frames_answered)
-        self.loss = loss_reason(unreadable, unreadable_frames, self.damage, unanswered, bool(self.args.lockstep))
+        self.loss = loss_reason(
+            unreadable,
+            unreadable_frames,
+            self.damage,
+            unanswered,
+            bool(self.args.lockstep),
+            self.frames_by_source.get(TrackArray.SOURCE_UNREADABLE, 0),
+        )
         latency = ""
         if self.latencies_s:
             import numpy as np
 
             p50, p99 = np.percentile(np.asarray(self.latencies_s) * 1000.0, [50, 99])
-            latency = f", camera-to-tracks latency p50 {p50:.0f} ms p99 {p99:.0f} ms"
-        return (
-            f"pipeline: replayed {frames} frames in {elapsed:.1f} s ({frames / max(elapsed, 1e-9):.1f} fps), "
-            f"{self.tracks_received} track messages, {unanswered} frames without an answer{latency}"
-            + (f", {self.unmatched_answers} answers to frames not awaited ignored" if self.unmatched_answers else "")
-            + (f", {unreadable} unreadable messages skipped ({unreadable_frames} frames)" if unreadable else "")
-            + (", the bag ends in damage" if self.damage else "")
+            latency = f"; camera-to-tracks latency p50 {p50:.0f} ms, p99 {p99:.0f} ms"
+        rate = ""
+        if first_sent is not None and last_sent is not None and frames > 1:
+            sent_s = max(last_sent[0] - first_sent[0], 1e-9)
+            bag_s = max((last_sent[1] - first_sent[1]) / 1e9, 1e-9)
+            pace = "as fast as answered" if self.args.lockstep else f"asked {self.args.rate:g}x the bag's"
+            rate = (
+                f" at {(frames - 1) / sent_s:.1f} fps (the bag's {(frames - 1) / bag_s:.1f} fps, {pace}: "
+                f"x{bag_s / sent_s:.2f} achieved)"
+            )
+        skipped = self.frames_by_source.get(TrackArray.SOURCE_PREDICTED, 0)
+        undecodable = self.frames_by_source.get(TrackArray.SOURCE_UNREADABLE, 0)
+        predicted = ", ".join(
+            text
+            for count, text in (
+                (skipped, f"{skipped} skipped by plan while the global detector was busy"),
+                (undecodable, f"{undecodable} undecodable"),
+            )
+            if count
         )
+        predicted = f" ({predicted}: answered by prediction)" if predicted else ""
+        answered = frames - unanswered
+        return (
+            f"pipeline: sent {frames} frames in {elapsed:.1f} s{rate}; answered {answered}{predicted}, "
+            f"{unanswered} frames without an answer; {self.tracks_received} track messages{latency}"
+            + (f"; {self.unmatched_answers} answers to frames not awaited ignored" if self.unmatched_answers else "")
+            + (f"; {unreadable} unreadable bag messages skipped ({unreadable_frames} frames)" if unreadable else "")
+            + ("; the bag ends in damage" if self.damage else "")
+        )
+
+    def warm_up(self, image: McapMessage, stamp_ns: int, stop: threading.Event) -> bool:
+        """Send the warm-up frame (``image``, the bag's first, as :func:`warm_up_image` at
+        ``stamp_ns``) and wait for its tracks, at most ``--frame-timeout``; say how long it took.
+        Start-up, not replay: the first inference of each model and the first message of each
+        link are paid here, and every node starts afresh after it."""
+        began = time.monotonic()
+        with self._answered_cv:
+            self._warm_up_answered = False
+        self._publisher(image.topic, image.msgtype).publish(warm_up_image(image, stamp_ns))
+        deadline = began + self.args.frame_timeout
+        with self._answered_cv:
+            while not self._warm_up_answered and not stop.is_set() and time.monotonic() < deadline:
+                self._answered_cv.wait(0.05)
+            answered = self._warm_up_answered
+        took = time.monotonic() - began
+        if answered:
+            print(f"pipeline: warm-up frame answered in {took:.2f} s (start-up, not counted below)", flush=True)
+        elif not stop.is_set():
+            print(f"pipeline: no answer to the warm-up frame after {took:.1f} s; replaying anyway", flush=True)
+        return answered
 
     def _bag_stream(self) -> Iterator[McapMessage]:
         """The bag's messages in log-time order (a forward scan: no summary needed), ending at the

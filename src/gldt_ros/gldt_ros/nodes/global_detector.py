@@ -24,6 +24,7 @@ from gldt_core.detect.second_stage import GLOBAL_COLUMNS
 from gldt_core.system.steps import drop_nested, filter_classes
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr
+from gldt_ros.interface.graph import WARM_UP_FRAME_ID
 from gldt_ros.interface.params import detector_kwargs, parse_classes
 from gldt_ros.runtime.node_base import GldtNode, run_node
 
@@ -41,11 +42,12 @@ class GlobalDetectorNode(GldtNode):
         # pairs arrive faster than it answers, and queueing them puts whole seconds between camera
         # and tracks. By default it skips to the newest pair instead.
         pairs_qos = qos.newest_first(int(self.param("pair_queue_depth")))
-        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), pairs_qos)
         self.publisher = self.create_publisher(DetectionArray, topics.DETECTIONS, qos.RELIABLE)
         self.last_pair: GlobalCarry | None = None  # the last pair's current input and its features
         self.last_pair_index: int | None = None  # and that pair's frame index
         self.warm_up()
+        # Last, once warm: pipeline takes the graph as up when this subscription is matched.
+        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), pairs_qos)
 
     def warm_up(self) -> None:
         """Run the model on blank pairs of a 1080p camera's input size before the node reports
@@ -93,7 +95,8 @@ class GlobalDetectorNode(GldtNode):
         raw, current_features = self.detector.detect_prepared(
             previous, current, letterbox, int(pair.full_width), int(pair.full_height), previous_features
         )
-        self.last_pair, self.last_pair_index = GlobalCarry(current, current_features), int(pair.frame_index)
+        if pair.header.frame_id != WARM_UP_FRAME_ID:  # it leaves no state behind
+            self.last_pair, self.last_pair_index = GlobalCarry(current, current_features), int(pair.frame_index)
         detections = drop_nested(
             filter_classes(raw, GLOBAL_COLUMNS, self.classes), float(self.param("nested_threshold"))
         )

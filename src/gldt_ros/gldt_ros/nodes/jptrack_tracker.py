@@ -9,10 +9,18 @@ every live track in every frame, coasting ones included, each id closed by one `
 with its class and a filtered time to collision; with a usable ``/camera/camera_info`` also its
 line of sight, REP-103 bearing and bearing covariance. Until then (or after a camera_info that
 cannot be used) the node's diagnostics say WARN and bearings are marked invalid; tracks flow.
+
+A frame that ``frame_pair_buffer`` skipped (``DetectionArray.MODE_SKIPPED``: the global detector
+was still busy; ``MODE_UNREADABLE``: the image could not be decoded) is answered too, with every
+track at its prediction (``TrackArray.SOURCE_PREDICTED`` / ``SOURCE_UNREADABLE``); the tracker is
+not updated, so a skip is never a miss. Frame ticks whose stamp does not advance (a camera or bag
+that went back in time, or repeated a stamp) re-initialise the tracker, as the offline system
+does, and the warm-up frame leaves the tracker as it found it.
 """
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -26,17 +34,28 @@ from gldt_core.system.config import SystemConfig, TrackerSettings
 from gldt_core.system.gldt_system import accepts_keyword, build_tracker
 from gldt_core.system.stamps import StampOrder
 from gldt_core.system.steps import stable_predictions
-from gldt_core.track.planner_stream import PlannerStream
+from gldt_core.track.planner_stream import PlannerStream, PlannerTrack
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import (
     detection_array_class_probabilities,
     detection_array_to_tracker_input,
     msgs_to_rois,
+    stamp_nanoseconds,
     stamp_seconds,
     track_to_msg,
 )
+from gldt_ros.interface.graph import WARM_UP_FRAME_ID
 from gldt_ros.interface.track_fields import markers_for, planner_track_to_msg
 from gldt_ros.runtime.node_base import GldtNode, run_node
+
+#: Frames waiting for their detections at most (the oldest is given up beyond it).
+PENDING_LIMIT = 64
+
+#: Skip notices (no detector ran) -> the source of the predicted TrackArray that answers them.
+PREDICTED_SOURCE = {
+    DetectionArray.MODE_SKIPPED: TrackArray.SOURCE_PREDICTED,
+    DetectionArray.MODE_UNREADABLE: TrackArray.SOURCE_UNREADABLE,
+}
 
 #: The diagnostics condition raised while bearings cannot be computed.
 CAMERA_INFO_WARNING = "camera_info"
@@ -55,10 +74,15 @@ class TrackerNode(GldtNode):
         self.camera: CameraModel | None = None
         self.set_warning(CAMERA_INFO_WARNING, "no camera_info received yet: bearings invalid")
         self._order = StampOrder()
+        self._last_tick_stamp: float | None = None
         self._last_tracked_stamp = Time()  # zero: nothing tracked yet
-        self.create_subscription(
-            DetectionArray, topics.DETECTIONS, self.guarded(self.on_detections, "detections"), qos.RELIABLE
-        )
+        # Frames ticked (or announced) and not answered yet, header stamp [ns] -> (their detections
+        # once they came, when the frame was ticked): answered strictly in stamp order.
+        self._pending: dict[int, tuple[DetectionArray | None, float]] = {}
+        self.order_timeout_s = float(self.param("input_order_timeout"))
+        self._process = self.guarded(self.on_detections, "detections")
+        self.create_subscription(DetectionArray, topics.DETECTIONS, self.on_detections_arrived, qos.RELIABLE)
+        self.create_timer(0.02, self._answer_in_order)
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
         self.create_subscription(
             CameraInfo,
@@ -93,7 +117,21 @@ class TrackerNode(GldtNode):
             self.stream.restart()
             self._frame_size = size
             self._order.forget()
+        elif self._last_tick_stamp is not None and t <= self._last_tick_stamp:
+            # Ticks come from one writer, in camera order: this is the camera's time, not a late message.
+            self.get_logger().warning(
+                f"frame {tick.frame_index}: time did not advance ({self._last_tick_stamp:.3f} s -> {t:.3f} s); "
+                "tracker re-initialised"
+            )
+            self.tracker.reset()
+            self.stream.restart()
+            self._order.forget()
+            self._pending.clear()
+        self._last_tick_stamp = t
         self._check_time(t, tick.frame_index)
+        self._pending[stamp_nanoseconds(tick.header.stamp)] = (None, time.monotonic())
+        while len(self._pending) > PENDING_LIMIT:
+            del self._pending[min(self._pending)]
         predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
         by_id = {int(track.track_id): track for track in self.tracker.tracks}
         messages = []
@@ -124,9 +162,36 @@ class TrackerNode(GldtNode):
             self.tracker.reset()
             self.stream.restart()
 
+    def on_detections_arrived(self, message: DetectionArray) -> None:
+        """Detections (or a skip notice) for a frame: processed once every earlier frame ticked
+        has been (the global detector, the local detector and the buffer's notices are three
+        writers, and one can overtake another), or at once for a frame no earlier one waits for."""
+        self._pending[stamp_nanoseconds(message.header.stamp)] = (message, time.monotonic())
+        self._answer_in_order()
+
+    def _answer_in_order(self) -> None:
+        """Process the pending frames' detections in stamp order, up to the first frame still
+        without them; one that waited ``input_order_timeout`` is given up (a detector restarted, or
+        its queue dropped the pair) and no longer holds the later ones back."""
+        while self._pending:
+            stamp = min(self._pending)
+            message, since = self._pending[stamp]
+            if message is None:
+                if time.monotonic() - since < self.order_timeout_s:
+                    return
+                self.warn_throttled("order timeout", f"no detections for the frame stamped {stamp} ns; answering on")
+            del self._pending[stamp]
+            if message is not None:
+                self._process(message)
+
     def on_detections(self, message: DetectionArray) -> None:
         t = stamp_seconds(message.header.stamp)
         self._check_time(t, message.frame_index)
+        if message.mode in PREDICTED_SOURCE:
+            # Not accepted as the newest stamp: an earlier frame's detections still coming count.
+            predicted = self.stream.predicted(self.tracker.tracks, t, self.camera)
+            self._publish(message, PREDICTED_SOURCE[message.mode], predicted)
+            return
         self._order.accept(t)
         detections = detection_array_to_tracker_input(message)
         if self._takes_rois:
@@ -146,12 +211,24 @@ class TrackerNode(GldtNode):
             self.camera,
             source=int(message.mode),
         )
+        source = TrackArray.SOURCE_LOCAL if message.mode == DetectionArray.MODE_LOCAL else TrackArray.SOURCE_GLOBAL
+        self._publish(message, source, entries)
+
+    def _publish(self, message: DetectionArray, source: int, entries: list[PlannerTrack]) -> None:
+        """Publish the frame's planner entries (and markers) as the answer to ``message``'s frame."""
         tracks = [planner_track_to_msg(entry) for entry in entries]
-        array = TrackArray(header=message.header, frame_index=message.frame_index, tracks=tracks)
+        array = TrackArray(header=message.header, frame_index=message.frame_index, source=source, tracks=tracks)
         self._last_tracked_stamp = message.header.stamp
         self.track_publisher.publish(array)
         if bool(self.param("publish_markers")) and self.marker_publisher.get_subscription_count() > 0:
             self.marker_publisher.publish(markers_for(array))
+        if message.header.frame_id == WARM_UP_FRAME_ID:  # it leaves no state behind
+            self.tracker.reset()
+            self.stream = PlannerStream()
+            self._order.forget()
+            self._last_tick_stamp = None
+            self._last_tracked_stamp = Time()
+            self._pending.clear()
 
 
 def create_node(cli_args: list[str] | None = None) -> TrackerNode:

@@ -25,6 +25,7 @@ from gldt_core.schedule.roi import RoiParams
 from gldt_core.schedule.scheduler import ModeScheduler, SchedulerConfig
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.convert import rois_to_msgs, stamp_seconds
+from gldt_ros.interface.graph import WARM_UP_FRAME_ID
 from gldt_ros.runtime.node_base import STALE_DROPPED, GldtNode, run_node
 
 
@@ -163,6 +164,10 @@ class ModeSchedulerNode(GldtNode):
         self.latched_publisher.publish(decision)
         if local:
             self.roi_publisher.publish(RoiArray(header=message.header, frame_index=index, rois=roi_msgs))
+        if message.header.frame_id == WARM_UP_FRAME_ID:  # it leaves no state behind
+            self.scheduler.reset()
+            self._plans.clear()
+            self._size, self._last_stamp, self._awaiting_report = None, None, None
 
     def on_detections(self, message: DetectionArray) -> None:
         index = int(message.frame_index)
