@@ -38,3 +38,47 @@ def isolated_ros_env() -> dict[str, str]:
     env = dict(os.environ)
     env["ROS_DOMAIN_ID"] = str(_next_domain[0])
     return env
+
+
+#: The installed ``pipeline`` command (``make test`` builds it).
+PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
+
+
+class PipelineRun:
+    """A ``pipeline`` process started with ``arguments``, whose output lines are collected as they
+    come (:attr:`lines`), each also with its arrival time (:attr:`timed`)."""
+
+    def __init__(self, arguments: list[str], env: dict[str, str]) -> None:
+        import subprocess
+        import threading
+
+        self.process = subprocess.Popen(
+            [str(PIPELINE), *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
+        )
+        self.timed: list[tuple[float, str]] = []
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        import time
+
+        assert self.process.stdout is not None
+        for line in self.process.stdout:
+            self.timed.append((time.monotonic(), line.rstrip("\n")))
+
+    @property
+    def lines(self) -> list[str]:
+        return [line for _, line in list(self.timed)]
+
+    @property
+    def text(self) -> str:
+        return "\n".join(self.lines)
+
+    def with_text(self, fragment: str) -> list[tuple[float, str]]:
+        """``(arrival time, line)`` of each line holding ``fragment``."""
+        return [(when, line) for when, line in list(self.timed) if fragment in line]
+
+    def wait(self, timeout_s: float) -> int:
+        code = self.process.wait(timeout=timeout_s)
+        self._reader.join(timeout=5.0)
+        return code

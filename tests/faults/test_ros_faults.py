@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 import pytest
 
-from support import REPO_ROOT, isolated_ros_env
+from support import PIPELINE, REPO_ROOT, isolated_ros_env
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
@@ -29,7 +29,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy  # noqa: E402
 from gldt_ros.interface.graph import NODES  # noqa: E402
 from gldt_ros.runtime.spin import start_spin_thread  # noqa: E402
 
-PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
 RELIABLE = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
 
 

@@ -12,11 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from support import REAL_BAG, REPO_ROOT, isolated_ros_env
+from support import PIPELINE, REAL_BAG, isolated_ros_env
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
-PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
 FRAMES = 60
 UNDECODABLE = 20  # its JPEG bytes are garbage
 REPEATED = 30  # stamped like the frame before it

@@ -5,44 +5,14 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from support import REAL_BAG, REPO_ROOT, isolated_ros_env
+from support import REAL_BAG, PipelineRun, isolated_ros_env
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
-
-PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
-
-
-class Run:
-    """A ``pipeline`` process whose output lines are collected as they come."""
-
-    def __init__(self, arguments: list[str], env: dict[str, str]) -> None:
-        self.process = subprocess.Popen(
-            [str(PIPELINE), *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
-        )
-        self.lines: list[str] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    @property
-    def text(self) -> str:
-        return "\n".join(self.lines)
-
-    def wait(self, timeout_s: float) -> int:
-        code = self.process.wait(timeout=timeout_s)
-        self._reader.join(timeout=5.0)
-        return code
 
 
 def recorded_frames(path: Path) -> list[int]:
@@ -97,7 +67,9 @@ def test_sigkill_of_pipeline_keeps_the_recording_and_ends_its_nodes(tmp_path: Pa
     """``kill -9`` of the pipeline alone: every node process (and the warm spare) ends within a
     few seconds, and the recording reads back with the frames answered up to the last second."""
     record = tmp_path / "graph.mcap"
-    run = Run(["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), "--spare-delay", "0"], isolated_ros_env())
+    run = PipelineRun(
+        ["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), "--spare-delay", "0"], isolated_ros_env()
+    )
     try:
         deadline = time.monotonic() + 120.0
         while not recorded_frames(record):
@@ -137,7 +109,7 @@ def test_ctrl_c_of_pipeline_stops_cleanly_and_keeps_the_recording(tmp_path: Path
     ``/clock`` between frames): one line, no traceback, exit 0, every node stopped, and the
     recording closed with what was answered."""
     record = tmp_path / "graph.mcap"
-    run = Run(["--bag", str(REAL_BAG), "--rate", "1.0", "--record", str(record)], isolated_ros_env())
+    run = PipelineRun(["--bag", str(REAL_BAG), "--rate", "1.0", "--record", str(record)], isolated_ros_env())
     try:
         deadline = time.monotonic() + 120.0
         while not recorded_frames(record):
@@ -172,7 +144,9 @@ def test_two_replays_at_once_each_record_only_their_own_frames(tmp_path: Path) -
     del env["ROS_DOMAIN_ID"]
     runs = []
     for k in range(2):
-        runs.append(Run(["--bag", str(REAL_BAG), "--lockstep", "--record", str(tmp_path / f"run{k}.mcap")], env))
+        runs.append(
+            PipelineRun(["--bag", str(REAL_BAG), "--lockstep", "--record", str(tmp_path / f"run{k}.mcap")], env)
+        )
         time.sleep(1.0)
     try:
         codes = [run.wait(300.0) for run in runs]

@@ -12,11 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from support import REAL_BAG, REPO_ROOT, isolated_ros_env
+from support import PIPELINE, REAL_BAG, isolated_ros_env
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
-PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
 #: 4 bytes of CDR encapsulation and 5 of nothing: too short to hold a header.
 NINE_BYTES = b"\x00\x01\x00\x00" + b"\x00" * 5
 BROKEN_FRAME = 10

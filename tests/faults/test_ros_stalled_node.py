@@ -9,43 +9,16 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
-import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from support import REAL_BAG, REPO_ROOT, isolated_ros_env
+from support import REAL_BAG, PipelineRun, isolated_ros_env
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
 from gldt_ros.interface.graph import NODES  # noqa: E402
-
-PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
-
-
-class Run:
-    """A ``pipeline`` process whose output lines are collected, each with its arrival time."""
-
-    def __init__(self, arguments: list[str], env: dict[str, str]) -> None:
-        self.process = subprocess.Popen(
-            [str(PIPELINE), *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
-        )
-        self.lines: list[tuple[float, str]] = []
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.process.stdout is not None
-        for line in self.process.stdout:
-            self.lines.append((time.monotonic(), line.rstrip("\n")))
-
-    @property
-    def text(self) -> str:
-        return "\n".join(line for _, line in self.lines)
-
-    def with_text(self, fragment: str) -> list[tuple[float, str]]:
-        return [(when, line) for when, line in list(self.lines) if fragment in line]
 
 
 def recorded_stamps(path: Path) -> list[int]:
@@ -73,7 +46,7 @@ def test_a_stopped_node_is_restarted_and_the_replay_goes_on(tmp_path: Path, vict
     env = isolated_ros_env()
     del env["ROS_DOMAIN_ID"]  # a free domain of pipeline's own: no other test's graph can meet this one
     # --spare-delay 0: the restart uses the warm spare, as a restart long after start-up would.
-    run = Run(["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), "--spare-delay", "0"], env)
+    run = PipelineRun(["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), "--spare-delay", "0"], env)
     stopped_pid: int | None = None
     try:
         deadline = time.monotonic() + 120.0
@@ -82,7 +55,7 @@ def test_a_stopped_node_is_restarted_and_the_replay_goes_on(tmp_path: Path, vict
             assert time.monotonic() < deadline, "the nodes were not up after 120 s:\n" + run.text
             time.sleep(0.05)
         time.sleep(1.0)  # into the replay (150 frames take 3 s and more in lockstep)
-        assert run.process.poll() is None and not run.with_text("replayed"), "the replay ended before the stop"
+        assert run.process.poll() is None and not run.with_text("pipeline: sent "), "the replay ended before the stop"
         stopped_pid = int(run.with_text(f"started {victim} (pid ")[0][1].split("(pid ")[1].split(")")[0])
         os.kill(stopped_pid, signal.SIGSTOP)
         stopped_at = time.monotonic()

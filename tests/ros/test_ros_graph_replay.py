@@ -15,11 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from support import REPO_ROOT, isolated_ros_env
+from support import PIPELINE, REPO_ROOT, isolated_ros_env
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
-PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
 BAGS = sorted(path for path in (REPO_ROOT / "bags").iterdir() if (path / "metadata.yaml").is_file())
 
 #: Lowest MOTA (drones only) a sample bag's tracks must reach: a floor below what the offline run

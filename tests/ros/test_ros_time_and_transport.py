@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from support import REPO_ROOT, SYNTH_BAG, isolated_ros_env
+from support import PIPELINE, SYNTH_BAG, isolated_ros_env
 
 rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
@@ -25,7 +25,6 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 
 from gldt_ros.interface import qos, topics  # noqa: E402
 
-PIPELINE = REPO_ROOT / "install" / "gldt_ros" / "lib" / "gldt_ros" / "pipeline"
 WIDTH, HEIGHT = 320, 240
 #: The test bags' frame stamps: 20 Hz from 0.5 s, as a bag recorded from a fresh clock has.
 STAMPS_NS = [500_000_000 + 50_000_000 * i for i in range(6)]
