@@ -99,6 +99,8 @@ CLOCK_TOPIC = "/clock"
 #: ``pipeline``'s exit status when a replay lost frames or left them unanswered (:func:`loss_reason`);
 #: ``gldt run`` uses the same for input frames it could not read.
 LOST_FRAMES_EXIT = 3
+#: Share of the asked replay rate below which the summary says the player fell behind.
+PACE_KEPT = 0.95
 #: Images read ahead when looking for the bag's first camera_info (:func:`bag_head`).
 HEAD_IMAGES = 64
 
@@ -633,6 +635,8 @@ class GraphDriver(Node):
                 f" at {(frames - 1) / sent_s:.1f} fps (the bag's {(frames - 1) / bag_s:.1f} fps, {pace}: "
                 f"x{bag_s / sent_s:.2f} achieved)"
             )
+            if not self.args.lockstep and bag_s / sent_s < PACE_KEPT * self.args.rate:
+                rate += f"; the player could not keep x{self.args.rate:g} the bag's pace"
         skipped = self.frames_by_source.get(TrackArray.SOURCE_PREDICTED, 0)
         undecodable = self.frames_by_source.get(TrackArray.SOURCE_UNREADABLE, 0)
         predicted = ", ".join(
