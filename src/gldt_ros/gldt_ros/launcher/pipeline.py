@@ -20,12 +20,17 @@ The player restamps the bag's frames to the time the replay starts (``--keep-bag
 them), sends each frame's camera_info first, and publishes ``/clock``
 (:mod:`gldt_ros.launcher.replay`). It reads a damaged bag as the offline reader does: a forward
 scan that needs no summary, a message that cannot be read skipped with one warning, and
-everything before damage replayed.
+everything before damage replayed. Before the first frame it sends a warm-up frame through the
+graph (start-up: not recorded, not counted), and at the end one summary line: frames sent, the
+rate achieved against the bag's, frames answered (counted from the tracks received; how many by
+prediction, for frames skipped by plan or undecodable), latency p50/p99.
 
-Exit status: 0 when every frame of the bag was replayed and answered; 3 when frames were lost
-(unreadable messages skipped, a bag that ends in damage) or unanswered (lockstep frames given up,
-paced frames sent but never answered), said in one line after the summary, which counts them; 1
-when the graph failed (a node that would not start, died for good or did not stop cleanly).
+Exit status: 0 when every frame of the bag was replayed and answered (frames the graph skipped by
+plan while the global detector was busy are answered, by prediction: the documented degradation);
+3 when frames were lost (unreadable messages skipped, images the graph could not decode, a bag
+that ends in damage) or unanswered (lockstep frames given up, paced frames sent but never
+answered), said in one line after the summary; 1 when the graph failed (a node that would not
+start, died for good or did not stop cleanly).
 
 ROS arguments after ``--ros-args`` (remaps, ``-p name:=value``,
 ``--params-file``, ``--log-level``) go to every node and to the player, as ``ros2 launch`` would
