@@ -290,10 +290,9 @@ class GraphDriver(Node):
         self.latencies_s: list[float] = []
         self._answered_cv = threading.Condition()
         self.tracks_received = 0
-        #: Frames this player sent that ``/gldt/tracks`` answered (a paced replay's loss count),
-        #: and of them those answered by prediction (``TrackArray.SOURCE_PREDICTED``: skipped by plan).
+        #: Frames this player sent that ``/gldt/tracks`` answered (a paced replay's loss count), and
+        #: how many of them by each ``TrackArray.source`` (``SOURCE_PREDICTED``: skipped by plan).
         self.frames_answered = 0
-        #: Of them, the frames answered by prediction: ``TrackArray.source`` -> count.
         self.frames_by_source: dict[int, int] = {}
         self._warm_up_answered = False
         #: Why frames of the last replay were lost or unanswered, in one line, or ``None``.
