@@ -50,6 +50,8 @@ from gldt_ros.runtime.node_base import GldtNode, run_node
 
 #: Frames waiting for their detections at most (the oldest is given up beyond it).
 PENDING_LIMIT = 64
+#: How often a frame that waits for an earlier one's detections is checked against ``input_order_timeout``.
+ORDER_CHECK_PERIOD_S = 0.1
 
 #: Skip notices (no detector ran) -> the source of the predicted TrackArray that answers them.
 PREDICTED_SOURCE = {
@@ -82,7 +84,7 @@ class TrackerNode(GldtNode):
         self.order_timeout_s = float(self.param("input_order_timeout"))
         self._process = self.guarded(self.on_detections, "detections")
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.on_detections_arrived, qos.RELIABLE)
-        self.create_timer(0.02, self._answer_in_order)
+        self.create_timer(ORDER_CHECK_PERIOD_S, self._answer_in_order)
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
         self.create_subscription(
             CameraInfo,
