@@ -15,10 +15,18 @@ from typing import Any
 
 import numpy as np
 
+from gldt_core.io.cdr import after_header_fields
 from gldt_core.io.mcap_file import McapDamageError, read_mcap
 from gldt_core.track.planner_stream import MATCHED_STATES, STATE_CODES
 
 TRACKS_TOPIC_SUFFIX = "gldt/tracks"
+
+
+def track_array_frame_and_source(cdr: bytes) -> tuple[int, int]:
+    """``(frame_index, source)`` of a ``gldt_msgs/TrackArray`` read from its CDR bytes without
+    deserialising its tracks (``source``: ``TrackArray.SOURCE_*``); ValueError when too short."""
+    frame_index, source = after_header_fields(cdr, "QB")
+    return int(frame_index), int(source)
 
 
 def iter_recorded(path: str | os.PathLike[str], topic_suffix: str) -> Iterator[tuple[str, Any, int]]:

@@ -34,8 +34,9 @@ from pathlib import Path
 import numpy as np
 
 from gldt_core.io.bag import IMAGE_TYPES, bag_messages
-from gldt_core.io.cdr import after_header_fields, header_stamp_ns
+from gldt_core.io.cdr import header_stamp_ns
 from gldt_core.io.mcap_file import read_mcap
+from gldt_core.io.recording import TRACKS_TOPIC_SUFFIX, track_array_frame_and_source
 from gldt_core.paths import REPO_ROOT
 
 SAMPLE_BAGS = (REPO_ROOT / "bags" / "halmstad_v_drone_001", REPO_ROOT / "bags" / "synth_1080p_multi_uav")
@@ -90,12 +91,12 @@ def judge_recording(record: Path) -> tuple[int, int, np.ndarray]:
     answered: dict[int, int] = {}
     latencies = []
     for message in read_mcap(record):
-        if not message.topic.endswith("gldt/tracks"):
+        if not message.topic.endswith(TRACKS_TOPIC_SUFFIX):
             continue
-        frame_index, source = after_header_fields(message.data, "QB")
-        if int(frame_index) in answered:
+        frame_index, source = track_array_frame_and_source(message.data)
+        if frame_index in answered:
             continue  # a frame answered twice counts once
-        answered[int(frame_index)] = int(source)
+        answered[frame_index] = source
         latencies.append((message.log_time_ns - header_stamp_ns(message.data)) / 1e6)
     predicted = sum(source in PREDICTED_SOURCES for source in answered.values())
     return len(answered), predicted, np.asarray(latencies, dtype=np.float64)

@@ -44,8 +44,9 @@ from gldt_core.io.bag import (
     bag_channel_types,
     bag_messages,
 )
-from gldt_core.io.cdr import after_header_fields, header_frame_id, header_stamp_ns, with_header_stamp
+from gldt_core.io.cdr import header_frame_id, header_stamp_ns, with_header_stamp
 from gldt_core.io.mcap_file import McapMessage, McapWriter
+from gldt_core.io.recording import track_array_frame_and_source
 from gldt_core.io.ros_types import typestore
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.graph import NODES, WARM_UP_FRAME_ID
@@ -126,12 +127,13 @@ def bag_head(bag: Path, image_type: str) -> tuple[McapMessage | None, McapMessag
     first_image: McapMessage | None = None
     images = 0
     for message in readable_head(bag_messages(bag, log_time_order=True)):
-        if unreadable_reason(message) is not None:
-            continue  # the replay skips it (and says so)
-        if message.msgtype == CAMERA_INFO_TYPE:
+        if message.msgtype == CAMERA_INFO_TYPE and unreadable_reason(message) is None:
             return first_image, message
         if message.msgtype == image_type:
-            first_image = first_image or message
+            # Only the first image is deserialised whole (the replay skips an unreadable one and
+            # so must this); the later ones are counted, not read.
+            if first_image is None and unreadable_reason(message) is None:
+                first_image = message
             images += 1
             if images >= HEAD_IMAGES:
                 break
@@ -220,10 +222,9 @@ def loss_reason(
 def answer_source(track_array: bytes) -> int | None:
     """``source`` of a ``TrackArray`` (CDR bytes): what measured its frame (``SOURCE_*``)."""
     try:
-        _, source = after_header_fields(track_array, "QB")
+        return track_array_frame_and_source(track_array)[1]
     except ValueError:
         return None
-    return int(source)
 
 
 class Restamp:
