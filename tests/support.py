@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import os
 import random
+import subprocess
+import threading
+import time
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -49,9 +52,6 @@ class PipelineRun:
     come (:attr:`lines`), each also with its arrival time (:attr:`timed`)."""
 
     def __init__(self, arguments: list[str], env: dict[str, str]) -> None:
-        import subprocess
-        import threading
-
         self.process = subprocess.Popen(
             [str(PIPELINE), *arguments], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env
         )
@@ -60,8 +60,6 @@ class PipelineRun:
         self._reader.start()
 
     def _read(self) -> None:
-        import time
-
         assert self.process.stdout is not None
         for line in self.process.stdout:
             self.timed.append((time.monotonic(), line.rstrip("\n")))
@@ -82,3 +80,17 @@ class PipelineRun:
         code = self.process.wait(timeout=timeout_s)
         self._reader.join(timeout=5.0)
         return code
+
+
+def replay_in_lockstep(bag: Path, record: Path, frame_timeout_s: float) -> subprocess.CompletedProcess[str]:
+    """``pipeline --bag BAG --lockstep --keep-bag-stamps --record RECORD --frame-timeout S`` to its
+    end, on a domain of its own: the recorded tracks carry the bag's stamps and name the frames
+    that were answered."""
+    return subprocess.run(
+        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--keep-bag-stamps", "--record", str(record)]
+        + ["--frame-timeout", f"{frame_timeout_s:g}"],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=isolated_ros_env(),
+    )

@@ -5,14 +5,13 @@ so every frame is answered and the tracks equal the offline run's, frame by fram
 
 from __future__ import annotations
 
-import subprocess
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from support import PIPELINE, REAL_BAG, isolated_ros_env
+from support import REAL_BAG, replay_in_lockstep
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
@@ -69,14 +68,7 @@ def replayed(tmp_path_factory):
     folder = tmp_path_factory.mktemp("awkward")
     bag, stamps = awkward_bag(folder / "awkward.mcap")
     record = folder / "graph.mcap"
-    completed = subprocess.run(
-        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--keep-bag-stamps", "--record", str(record)]
-        + ["--frame-timeout", "120"],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env=isolated_ros_env(),
-    )
+    completed = replay_in_lockstep(bag, record, 120)
     return bag, stamps, record, completed
 
 

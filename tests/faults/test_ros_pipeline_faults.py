@@ -15,6 +15,20 @@ from support import REAL_BAG, PipelineRun, isolated_ros_env
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
 
+def wait_for_a_recorded_track(run: PipelineRun, record: Path, timeout_s: float = 120.0) -> None:
+    """Until ``record`` holds a readable ``/gldt/tracks`` message (the replay is under way)."""
+    deadline = time.monotonic() + timeout_s
+    while not recorded_frames(record):
+        assert run.process.poll() is None, "pipeline ended before recording anything:\n" + run.text
+        assert time.monotonic() < deadline, f"no track recorded after {timeout_s:g} s:\n" + run.text
+        time.sleep(0.05)
+
+
+def node_pids(run: PipelineRun) -> set[int]:
+    """Pids of the node processes ``pipeline`` said it started ("started NAME (pid N...)")."""
+    return {int(line.rsplit("(pid ", 1)[1].split(")")[0].split(",")[0]) for line in run.lines if "(pid " in line}
+
+
 def recorded_frames(path: Path) -> list[int]:
     """``frame_index`` of every ``/gldt/tracks`` message readable in ``path``, in recording order
     (a recording cut by a kill ends in damage: what was read before it counts)."""
@@ -71,14 +85,10 @@ def test_sigkill_of_pipeline_keeps_the_recording_and_ends_its_nodes(tmp_path: Pa
         ["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), "--spare-delay", "0"], isolated_ros_env()
     )
     try:
-        deadline = time.monotonic() + 120.0
-        while not recorded_frames(record):
-            assert run.process.poll() is None, "pipeline ended before recording anything:\n" + run.text
-            assert time.monotonic() < deadline, "no track recorded after 120 s:\n" + run.text
-            time.sleep(0.05)
+        wait_for_a_recorded_track(run, record)
         readable_before = len(recorded_frames(record))
         time.sleep(0.5)  # the kill lands between two of the writer's flushes, mid-replay
-        started = {int(line.rsplit("(pid ", 1)[1].split(")")[0].split(",")[0]) for line in run.lines if "(pid " in line}
+        started = node_pids(run)
         pids = child_pids(run.process.pid) | started
         assert run.process.poll() is None and not any(line.startswith("pipeline: sent ") for line in run.lines), (
             "the replay ended before the kill; it must land mid-replay:\n" + run.text
@@ -111,12 +121,8 @@ def test_ctrl_c_of_pipeline_stops_cleanly_and_keeps_the_recording(tmp_path: Path
     record = tmp_path / "graph.mcap"
     run = PipelineRun(["--bag", str(REAL_BAG), "--rate", "1.0", "--record", str(record)], isolated_ros_env())
     try:
-        deadline = time.monotonic() + 120.0
-        while not recorded_frames(record):
-            assert run.process.poll() is None, "pipeline ended before recording anything:\n" + run.text
-            assert time.monotonic() < deadline, "no track recorded after 120 s:\n" + run.text
-            time.sleep(0.05)
-        started = {int(line.rsplit("(pid ", 1)[1].split(")")[0].split(",")[0]) for line in run.lines if "(pid " in line}
+        wait_for_a_recorded_track(run, record)
+        started = node_pids(run)
         assert run.process.poll() is None and not any(line.startswith("pipeline: sent ") for line in run.lines), (
             "the replay ended before the interrupt; it must land mid-replay:\n" + run.text
         )

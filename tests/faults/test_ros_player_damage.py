@@ -7,12 +7,11 @@ tracks name the frames that were answered."""
 from __future__ import annotations
 
 import shutil
-import subprocess
 from pathlib import Path
 
 import pytest
 
-from support import PIPELINE, REAL_BAG, isolated_ros_env
+from support import REAL_BAG, isolated_ros_env, replay_in_lockstep
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
@@ -46,17 +45,6 @@ def recorded_track_stamps(record: Path) -> list[int]:
     ]
 
 
-def run_pipeline(bag: Path, record: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--keep-bag-stamps", "--record", str(record)]
-        + ["--frame-timeout", "60"],
-        capture_output=True,
-        text=True,
-        timeout=600,
-        env=isolated_ros_env(),
-    )
-
-
 def with_nine_byte_image(path: Path) -> tuple[Path, int, int]:
     """A copy of the sample bag as one MCAP file whose image number :data:`BROKEN_FRAME` is 9
     bytes; returns the file, that message's log time and its original stamp."""
@@ -85,7 +73,7 @@ def with_nine_byte_image(path: Path) -> tuple[Path, int, int]:
 def test_a_nine_byte_image_costs_that_frame_alone_and_exit_status_3(tmp_path: Path) -> None:
     bag, log_time_ns, lost_stamp = with_nine_byte_image(tmp_path / "nine_bytes.mcap")
     record = tmp_path / "graph.mcap"
-    completed = run_pipeline(bag, record)
+    completed = replay_in_lockstep(bag, record, 60)
     output = completed.stdout + completed.stderr
     assert completed.returncode == 3, output[-4000:]
     warnings = [line for line in output.splitlines() if "skipped an unreadable" in line]
@@ -112,7 +100,7 @@ def test_a_bag_cut_in_its_data_replays_every_readable_frame_and_exit_status_3(tm
     frames = image_stamps(bag)
     assert len(BagSource(bag)) <= len(frames) < len(image_stamps(REAL_BAG))
     record = tmp_path / "graph.mcap"
-    completed = run_pipeline(bag, record)
+    completed = replay_in_lockstep(bag, record, 60)
     output = completed.stdout + completed.stderr
     assert completed.returncode == 3, output[-4000:]
     assert "every graph link matched" in output, output[-4000:]  # the link wait happened
@@ -124,7 +112,7 @@ def test_a_bag_cut_in_its_data_replays_every_readable_frame_and_exit_status_3(tm
 
 def test_a_clean_replay_exits_0(tmp_path: Path) -> None:
     record = tmp_path / "graph.mcap"
-    completed = run_pipeline(REAL_BAG, record)
+    completed = replay_in_lockstep(REAL_BAG, record, 60)
     output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output[-4000:]
     assert "frames lost" not in output and "unreadable" not in output and "damage" not in output, output[-4000:]
@@ -152,7 +140,7 @@ def test_a_bag_cut_only_in_its_summary_replays_in_full_and_exits_0(tmp_path: Pat
     mcap.write_bytes(content[:-200])
     assert bag_channel_types(bag) == {}
     record = tmp_path / "graph.mcap"
-    completed = run_pipeline(bag, record)
+    completed = replay_in_lockstep(bag, record, 60)
     output = completed.stdout + completed.stderr
     assert completed.returncode == 0, output[-4000:]
     assert recorded_track_stamps(record) == image_stamps(REAL_BAG)
