@@ -225,7 +225,7 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
         victim,
         REPO_ROOT / "bags" / "halmstad_v_drone_001",
         record,
-        [str(PIPELINE), "--spare-delay", "0"],
+        [str(PIPELINE), "--spare-delay", "0", "--processes", "per-node"],
         env=isolated_ros_env(),
         kill_after_s=1.5,
     )
@@ -259,6 +259,40 @@ def test_killed_node_is_restarted_and_the_recording_keeps_everything(tmp_path: P
     assert run.victim_segments, f"{victim} held no Fast DDS segment when killed (shared-memory transport off?)"
     left = [name for name in run.victim_segments if (SHM_DIRECTORY / name).exists()]
     assert not left, f"segments of the killed {victim} are still in {SHM_DIRECTORY}: {left}\n{text}"
+
+
+def test_a_killed_group_of_nodes_restarts_as_one_process(tmp_path: Path) -> None:
+    """``--processes grouped``: SIGKILL the process that hosts several nodes mid-replay. It is
+    restarted once, as one process from the warm spare, every node of it comes up again, the
+    driver relinks the graph for all of them, and the replay goes on in frame order."""
+    from gldt_ros.bench.restart import recorded_track_times, run_with_kill
+    from gldt_ros.interface.graph import GROUPED, PROCESS_LAYOUTS
+
+    group = next(group for group in PROCESS_LAYOUTS[GROUPED] if len(group) > 1)
+    label = "+".join(group)
+    record = tmp_path / "graph.mcap"
+    run = run_with_kill(
+        label,
+        REPO_ROOT / "bags" / "halmstad_v_drone_001",
+        record,
+        [str(PIPELINE), "--spare-delay", "0", "--processes", GROUPED],
+        env=isolated_ros_env(),
+        kill_after_s=1.5,
+    )
+    text = run.text
+    lost = run.lines_with("frames lost or unanswered")
+    assert run.returncode == (3 if lost else 0), text
+    assert len(run.times_of(f"{label} exited")) == 1, text
+    started = run.lines_with(f"started {label} (pid")
+    assert len(started) == 2 and "the warm spare" in started[1], text
+    for name in group:
+        assert len(run.times_of(f"{name} ready")) == 2, f"{name} should have come up twice:\n{text}"
+    relinked = run.lines_with("graph linked again")
+    assert len(relinked) == 1 and all(name in relinked[0] for name in group), text
+    stamps_ns = [stamp for stamp, _ in recorded_track_times(record)]
+    assert stamps_ns == sorted(stamps_ns), "tracks out of frame order"
+    first_after = int(relinked[0].rsplit("next frame stamped ", 1)[1])
+    assert len([stamp for stamp in stamps_ns if stamp >= first_after]) >= 20, text
 
 
 def test_debug_overlay_is_published_while_someone_watches(graph: InProcessGraph) -> None:

@@ -14,6 +14,8 @@ from support import REAL_BAG, PipelineRun, isolated_ros_env
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
+from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, PROCESS_LAYOUTS  # noqa: E402
+
 
 def wait_for_a_recorded_track(run: PipelineRun, record: Path, timeout_s: float = 120.0) -> None:
     """Until ``record`` holds a readable ``/gldt/tracks`` message (the replay is under way)."""
@@ -22,6 +24,10 @@ def wait_for_a_recorded_track(run: PipelineRun, record: Path, timeout_s: float =
         assert run.process.poll() is None, "pipeline ended before recording anything:\n" + run.text
         assert time.monotonic() < deadline, f"no track recorded after {timeout_s:g} s:\n" + run.text
         time.sleep(0.05)
+
+
+#: The node processes of ``pipeline``'s default layout (some hold several nodes).
+NODE_PROCESSES = len(PROCESS_LAYOUTS[DEFAULT_PROCESS_LAYOUT])
 
 
 def node_pids(run: PipelineRun) -> set[int]:
@@ -99,7 +105,9 @@ def test_sigkill_of_pipeline_keeps_the_recording_and_ends_its_nodes(tmp_path: Pa
         if run.process.poll() is None and "killed_ns" not in locals():
             run.process.kill()
         run.wait(30.0)
-    assert len(started) == 5 and len(pids) >= 6, f"expected five nodes and the spare, got {pids}:\n{run.text}"
+    assert len(started) == NODE_PROCESSES and len(pids) >= NODE_PROCESSES + 1, (
+        f"expected {NODE_PROCESSES} node processes and the spare, got {pids}:\n{run.text}"
+    )
     deadline = time.monotonic() + 8.0
     while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
         time.sleep(0.1)
@@ -135,7 +143,7 @@ def test_ctrl_c_of_pipeline_stops_cleanly_and_keeps_the_recording(tmp_path: Path
     assert code == 0, run.text
     assert "Traceback" not in run.text and "FATAL" not in run.text, run.text
     assert any("interrupted, stopping" in line for line in run.lines), run.text
-    assert len(started) == 5 and not [pid for pid in started if alive(pid)], run.text
+    assert len(started) == NODE_PROCESSES and not [pid for pid in started if alive(pid)], run.text
     frames = recorded_frames(record)
     assert frames and frames == sorted(set(frames)), frames
 

@@ -46,7 +46,8 @@ def test_a_stopped_node_is_restarted_and_the_replay_goes_on(tmp_path: Path, vict
     env = isolated_ros_env()
     del env["ROS_DOMAIN_ID"]  # a free domain of pipeline's own: no other test's graph can meet this one
     # --spare-delay 0: the restart uses the warm spare, as a restart long after start-up would.
-    run = PipelineRun(["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), "--spare-delay", "0"], env)
+    per_node = ["--spare-delay", "0", "--processes", "per-node"]  # this test stops one node, alone in its process
+    run = PipelineRun(["--bag", str(REAL_BAG), "--lockstep", "--record", str(record), *per_node], env)
     stopped_pid: int | None = None
     try:
         deadline = time.monotonic() + 120.0

@@ -52,18 +52,25 @@ def offline_rows(bag: Path) -> tuple[np.ndarray, np.ndarray | None]:
     return rows, ground_truth
 
 
-#: (bag, nodes in one process?): every bag through one process per node, and the real bag through
-#: all nodes in `pipeline`'s own process (`--in-process`), which must give the same tracks.
-REPLAYS = [(bag, False) for bag in BAGS] + [(bag, True) for bag in BAGS if bag.name in MOTA_FLOOR]
+#: (bag, how the nodes share processes): every bag through `pipeline`'s default layout (grouped), and
+#: the real bag also through one process per node (`--processes per-node`) and through all nodes in
+#: `pipeline`'s own process (`--in-process`), which must give the same tracks.
+REPLAYS = [(bag, "default") for bag in BAGS] + [
+    (bag, placement) for bag in BAGS if bag.name in MOTA_FLOOR for placement in ("per-node", "in-process")
+]
+PLACEMENT_ARGS = {"default": [], "per-node": ["--processes", "per-node"], "in-process": ["--in-process"]}
 
 
-@pytest.fixture(scope="module", params=REPLAYS, ids=[bag.name + ("-in-process" if one else "") for bag, one in REPLAYS])
+@pytest.fixture(
+    scope="module",
+    params=REPLAYS,
+    ids=[bag.name + ("" if placement == "default" else f"-{placement}") for bag, placement in REPLAYS],
+)
 def replay(request, tmp_path_factory):
-    bag, in_process = request.param
+    bag, placement = request.param
     record = tmp_path_factory.mktemp(bag.name) / "graph.mcap"
     completed = subprocess.run(
-        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--record", str(record)]
-        + (["--in-process"] if in_process else []),
+        [str(PIPELINE), "--bag", str(bag), "--lockstep", "--record", str(record), *PLACEMENT_ARGS[placement]],
         capture_output=True,
         text=True,
         timeout=600,

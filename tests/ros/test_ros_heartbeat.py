@@ -141,15 +141,20 @@ def test_a_watcher_that_was_away_judges_no_one_for_it() -> None:
 # --- the supervisor --------------------------------------------------------------------------------
 
 
-def _stand_in_graph(monkeypatch: pytest.MonkeyPatch, clock: FakeClock, max_restarts: int) -> Any:
-    """``NodeProcesses`` whose five nodes are sleeping stand-ins, watched on ``clock``."""
+def _stand_in_graph(
+    monkeypatch: pytest.MonkeyPatch, clock: FakeClock, max_restarts: int, processes: str = "per-node"
+) -> Any:
+    """``NodeProcesses`` whose five nodes are sleeping stand-ins (one per node's process, as
+    ``processes`` places them), watched on ``clock``."""
     from gldt_ros.launcher import pipeline
 
     monkeypatch.setattr(
-        pipeline, "node_command", lambda name, args: [sys.executable, "-c", "import time; time.sleep(60)"]
+        pipeline, "process_command", lambda group, args: [sys.executable, "-c", "import time; time.sleep(60)"]
     )
     monkeypatch.setattr(pipeline, "Heartbeats", lambda: Heartbeats(clock=clock))
-    args = argparse.Namespace(max_restarts=max_restarts, spare=False, spare_delay=0.0, tune_malloc=False, executor=None)
+    args = argparse.Namespace(
+        max_restarts=max_restarts, spare=False, spare_delay=0.0, tune_malloc=False, executor=None, processes=processes
+    )
     children = pipeline.NodeProcesses(args)
     children.supervising = True
     return children
@@ -163,7 +168,7 @@ def _beat_all_but(children: Any, victim: str) -> None:
 
 def _stop_all(children: Any) -> None:
     for process in children.processes.values():
-        if process.poll() is None:
+        if process.poll() is None:  # a group's process may come twice: killed the first time
             process.kill()
             process.wait()
 
@@ -199,6 +204,47 @@ def test_a_stopped_node_is_killed_and_restarted_like_a_dead_one(
             _beat_all_but(children, victim)
             assert children.supervise(noted.append) == []
         assert children.dead() == [] and children.restarts[victim] == 1
+    finally:
+        _stop_all(children)
+
+
+def test_a_group_of_nodes_is_one_process_killed_and_restarted_as_a_whole(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--processes grouped``: one silent member takes its whole process down once, and the group
+    comes back as one new process that every member names, each member's restart counted."""
+    from gldt_ros.interface.graph import GROUPED, PROCESS_LAYOUTS
+
+    clock = FakeClock()
+    children = _stand_in_graph(monkeypatch, clock, max_restarts=5, processes=GROUPED)
+    noted: list[str] = []
+    try:
+        group = next(group for group in PROCESS_LAYOUTS[GROUPED] if "jptrack_tracker" in group)
+        assert len(group) > 1 and len({id(p) for p in children.processes.values()}) == len(PROCESS_LAYOUTS[GROUPED])
+        stopped = children.processes["jptrack_tracker"]
+        assert all(children.processes[name] is stopped for name in group)
+        _beat_all_but(children, "")
+        os.kill(stopped.pid, signal.SIGSTOP)
+        for _ in range(int(HEARTBEAT_LIMIT_S / 0.2)):
+            clock.now += 0.2
+            _beat_all_but(children, "jptrack_tracker")  # its group mates answer from their own timers
+            assert children.supervise(noted.append) == []
+        clock.now += 0.2
+        _beat_all_but(children, "jptrack_tracker")
+        assert sorted(children.supervise(noted.append)) == sorted(group)
+        assert sorted(noted) == sorted(group) and stopped.returncode == -signal.SIGKILL
+        restarted = children.processes["jptrack_tracker"]
+        assert restarted.pid != stopped.pid and all(children.processes[name] is restarted for name in group)
+        assert children.restarts == {name: int(name in group) for name in children.processes}
+        out = capsys.readouterr().out
+        assert out.count("sent no heartbeat") == 1, out
+        assert f"pipeline: started {'+'.join(group)} (pid {restarted.pid})" in out, out
+        # A member that dies by itself takes the group down as well: one restart, not one per member.
+        restarted.kill()
+        restarted.wait()
+        assert sorted(children.supervise(noted.append)) == sorted(group)
+        assert children.restarts == {name: 2 * int(name in group) for name in children.processes}
+        assert capsys.readouterr().out.count("exited with code") == 1
     finally:
         _stop_all(children)
 

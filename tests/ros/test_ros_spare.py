@@ -1,4 +1,5 @@
-"""gldt_ros.runtime.spare: the warm spare refuses bad requests in one line and exits on end of input."""
+"""gldt_ros.runtime.spare and node_group: a bad request or group is refused in one line; the spare
+exits on end of input."""
 
 from __future__ import annotations
 
@@ -8,19 +9,21 @@ import pytest
 
 pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
-from gldt_ros.runtime import spare  # noqa: E402
+from gldt_ros.runtime import node_group, spare  # noqa: E402
 
 
 @pytest.mark.parametrize(
     "request_line, complaint",
     [
-        ("not json\n", "bad request"),
-        ('["no_such_node"]\n', "expected one of"),
-        ('["mode_scheduler", 3]\n', "string arguments"),
-        ('[["mode_scheduler"]]\n', "expected one of"),
-        ("{}\n", "bad request"),
-        ('{"mode_scheduler": 1}\n', "expected a JSON list"),
-        ("[]\n", "bad request"),
+        ("not json\n", "not JSON"),
+        ('[["no_such_node"]]\n', "expected one of"),
+        ('[["mode_scheduler", 3]]\n', "string arguments"),
+        ('["mode_scheduler"]\n', "expected a [node, arguments...] list"),
+        ('[[["mode_scheduler"]]]\n', "expected one of"),
+        ('[["mode_scheduler"], ["mode_scheduler"]]\n', "named twice"),
+        ("{}\n", "non-empty JSON list"),
+        ('{"mode_scheduler": 1}\n', "non-empty JSON list"),
+        ("[]\n", "non-empty JSON list"),
     ],
 )
 def test_a_bad_request_is_refused_in_one_line(
@@ -29,6 +32,21 @@ def test_a_bad_request_is_refused_in_one_line(
     assert spare.become_node(request_line) == 2
     out = capsys.readouterr().out
     assert complaint in out and len(out.strip().splitlines()) == 1
+    assert node_group.main([request_line.strip()]) == 2, "a group process takes the same list"
+    out = capsys.readouterr().out
+    assert complaint in out and len(out.strip().splitlines()) == 1
+
+
+def test_a_group_request_names_each_node_with_its_own_arguments() -> None:
+    from gldt_ros.launcher.pipeline import parse_args, spare_request
+
+    args = parse_args(["--lockstep", "--namespace", "cam", "--processes", "grouped"])
+    group = node_group.parse_group(spare_request(["frame_pair_buffer", "mode_scheduler"], args))
+    assert [name for name, _ in group] == ["frame_pair_buffer", "mode_scheduler"]
+    buffer_args, scheduler_args = (arguments for _, arguments in group)
+    assert "skip_global_when_busy:=false" in buffer_args and "lockstep:=true" in scheduler_args
+    assert "lockstep:=true" not in buffer_args, "a node's overrides stay its own"
+    assert all("__ns:=/cam" in arguments for _, arguments in group)
 
 
 def test_end_of_input_without_a_request_exits_cleanly() -> None:

@@ -321,13 +321,13 @@ def test_a_bag_with_both_transports_is_played_on_the_one_the_graph_reads(player:
 
 def test_pipeline_hands_its_ros_args_to_every_node_after_its_own() -> None:
     from gldt_ros.interface.graph import NODES
-    from gldt_ros.launcher.pipeline import node_command, parse_args, player_ros_args
+    from gldt_ros.launcher.pipeline import node_arguments, parse_args, player_ros_args
 
     user = ["-p", "use_sim_time:=true", "-r", "camera/image_raw:=/cam/image"]
     args = parse_args(["--lockstep", "--ros-args", *user, "--", "--frame-timeout", "7"])
     assert args.frame_timeout == 7.0, "options after the ROS arguments' -- are pipeline's again"
     for name in NODES:
-        command = node_command(name, args)
+        command = node_arguments(name, args)
         at = next(i for i in range(len(command)) if command[i : i + len(user)] == user)
         assert command.index("--params-file") < at, "after the parameter file, so the user's values win"
         assert not [a for a in command[at + len(user) :] if a.startswith(("use_sim_time", "camera/"))]

@@ -7,7 +7,7 @@ Runs on the same bag, in one invocation so the machine's load is shared alike:
 1. offline: ``GLDTSystem`` in this process reading the bag as ``gldt run --bag`` does - the
    core's own time per frame (the peer). It includes decoding each camera frame, because the
    graph decodes it too (in frame_pair_buffer); the time without decoding is printed beside it;
-2. lockstep replay through the five processes - time per frame, whose excess over (1) is what
+2. lockstep replay through the node processes (``--processes``) - time per frame, whose excess over (1) is what
    the ROS transport and process hops cost. (1) and (2) alternate ``--repeats`` times and the
    overhead is the median of each adjacent pair's ratio: a shared machine's speed can drift
    several-fold within minutes, so one pair alone can be far off in either direction;
@@ -121,6 +121,7 @@ def startup_run(bag: Path) -> dict:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m gldt_ros.bench.graph", description=__doc__.split("\n\n")[0])
     from gldt_core.paths import REPO_ROOT
+    from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, PROCESS_LAYOUTS
 
     default_bag = REPO_ROOT / "bags" / "synth_1080p_multi_uav"
     parser.add_argument("--bag", type=Path, default=default_bag)
@@ -132,6 +133,12 @@ def main(argv: list[str] | None = None) -> int:
         "to tell the cost of the process hops from rclpy's own",
     )
     parser.add_argument(
+        "--processes",
+        choices=list(PROCESS_LAYOUTS),
+        default=DEFAULT_PROCESS_LAYOUT,
+        help="how the nodes share processes (pipeline --processes; default %(default)s)",
+    )
+    parser.add_argument(
         "--repeats",
         type=int,
         default=3,
@@ -140,7 +147,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.repeats < 1:
         parser.error(f"--repeats must be >= 1, got {args.repeats}")
-    mode = ["--in-process"] if args.in_process else []
+    mode = ["--in-process"] if args.in_process else ["--processes", args.processes]
 
     offline_runs: list[float] = []
     lockstep_runs: list[float] = []
@@ -162,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     core_rate = math.floor(core_rate * 1000) / 1000
     core_rate_run = graph_run(args.bag, ["--rate", f"{core_rate:.3f}", *mode]) if core_rate < args.rate else None
     startup = startup_run(args.bag)
-    placement = "in one process" if args.in_process else "one process each"
+    placement = "in one process" if args.in_process else f"processes {args.processes}"
     print(
         f"bench_graph: {args.bag.name}, {frames} frames, nodes {placement}, "
         f"{args.repeats} offline/lockstep pair(s) (medians)"

@@ -1,12 +1,14 @@
 """Restart benchmark (issue #9): how long the graph goes without tracks when one node is killed.
 
-Usage: ``python -m gldt_ros.bench.restart [--bag BAG] [--nodes NAME ...] [--repeats N] [--json]``
-(with the workspace on the paths, e.g. ``scripts/with_ros_env.sh python -m gldt_ros.bench.restart``).
+Usage: ``python -m gldt_ros.bench.restart [--bag BAG] [--nodes NAME ...] [--processes LAYOUT]
+[--repeats N] [--json]`` (with the workspace on the paths, e.g. ``scripts/with_ros_env.sh python -m
+gldt_ros.bench.restart``).
 
-For each node, ``pipeline --lockstep`` replays the bag; some seconds into the replay the node is
-killed with SIGKILL, the pipeline's supervisor restarts it, and the driver relinks the graph
-before its next frame. From the pipeline's output lines and the recorded ``/gldt/tracks`` it
-reports, in seconds:
+For each node process (a node, or a group of nodes sharing a process as ``--processes`` places
+them: ``pipeline``'s default layout unless told), ``pipeline --lockstep`` replays the bag; some
+seconds into the replay the process is killed with SIGKILL, the pipeline's supervisor restarts
+it, and the driver relinks the graph before its next frame. From the pipeline's output lines and
+the recorded ``/gldt/tracks`` it reports, in seconds:
 
 - ``start``: the restart to the new process's "ready" (interpreter, imports, models, DDS);
 - ``relink``: "ready" to every link of the graph matched again (DDS discovery);
@@ -33,7 +35,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gldt_ros.interface.graph import NODES
+from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, NODES, PROCESS_LAYOUTS
 from gldt_ros.runtime.shm_cleanup import segments_held_by
 
 #: The issue's goal: tracks again within this many seconds of the restart.
@@ -121,7 +123,8 @@ def restart_timings(run: KilledRun, record: Path) -> dict[str, float]:
     """The phases of one restart, in seconds (see the module docstring); raises ``ValueError``
     naming what is missing when the run did not restart and relink as it should."""
     restarted = run.times_of(f"{run.victim} exited")
-    ready = run.times_of(f"{run.victim} ready")
+    # A group's process is ready when its last node is (``victim`` names a group "a+b+c").
+    ready = [max(times) for times in zip(*(run.times_of(f"{name} ready") for name in run.victim.split("+")))]
     relinked = run.times_of("graph linked again")
     if len(restarted) != 1 or len(ready) != 2 or len(relinked) != 1:
         raise ValueError(f"{run.victim}: expected one restart, two 'ready' lines and one relink:\n{run.text}")
@@ -146,6 +149,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     parser.add_argument(
         "--nodes", nargs="+", choices=list(NODES), default=list(NODES), help="nodes to kill, one run each"
     )
+    parser.add_argument(
+        "--processes",
+        choices=list(PROCESS_LAYOUTS),
+        default=DEFAULT_PROCESS_LAYOUT,
+        help="how the nodes share processes (pipeline --processes; default %(default)s): the process of "
+        "each node named is killed, a group's once",
+    )
     parser.add_argument("--repeats", type=int, default=1, help="runs per node (the median is reported)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
     args = parser.parse_args(argv)
@@ -159,10 +169,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     # The spare from start-up on (not after the default --spare-delay): restarts from it are measured.
-    command = [sys.executable, "-m", "gldt_ros.launcher.pipeline", "--spare-delay", "0"]
+    command = [sys.executable, "-m", "gldt_ros.launcher.pipeline", "--spare-delay", "0", "--processes", args.processes]
+    victims = ["+".join(group) for group in PROCESS_LAYOUTS[args.processes] if set(group) & set(args.nodes)]
     results: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as scratch:
-        for victim in args.nodes:
+        for victim in victims:
             runs = []
             for repeat in range(args.repeats):
                 record = Path(scratch) / f"{victim}_{repeat}.mcap"
@@ -179,7 +190,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     print(f"restart of one node, lockstep replay of {args.bag} (median of {args.repeats}, and the worst run); seconds")
     print(
-        f"{'node':<18} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'worst':>6} {'goal':>5} "
+        f"{'node process':<18} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'worst':>6} {'goal':>5} "
         f"{'cold start':>11} {'ratio':>6}"
     )
     for victim, r in results.items():

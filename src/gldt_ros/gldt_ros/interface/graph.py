@@ -29,6 +29,23 @@ NODES: dict[str, str] = {
     "jptrack_tracker": "gldt_ros.nodes.jptrack_tracker",
 }
 
+#: How ``pipeline --processes`` places the nodes in processes: layout -> the groups of nodes that
+#: share a process (:mod:`gldt_ros.runtime.node_group`; a group of one is the node's own
+#: executable). ``grouped`` (the default) puts every node a LOCAL frame passes through (buffer,
+#: scheduler, tracker, local detector) in one process, so the five hops of such a frame after the
+#: camera's cost no process switch, and leaves the global detector, which works on a pair for
+#: longer than a frame period, in a process of its own, in parallel. A group restarts as a whole:
+#: a crash of the local detector costs the tracks their ids. ``per-node`` isolates every node.
+#: ``python -m gldt_ros.bench.graph --processes LAYOUT`` measures what each costs per frame.
+PER_NODE = "per-node"
+GROUPED = "grouped"
+PROCESS_LAYOUTS: dict[str, tuple[tuple[str, ...], ...]] = {
+    PER_NODE: tuple((name,) for name in NODES),
+    GROUPED: (("frame_pair_buffer", "mode_scheduler", "jptrack_tracker", "local_detector"), ("global_detector",)),
+}
+#: The layout ``pipeline`` starts when not told otherwise.
+DEFAULT_PROCESS_LAYOUT = GROUPED
+
 #: ``header.frame_id`` of the warm-up frame ``pipeline --bag`` sends before the replay: a copy of
 #: the bag's first image that runs through every node (first inference, every link's first
 #: message) and leaves no state behind. Each node that keeps state across frames starts afresh

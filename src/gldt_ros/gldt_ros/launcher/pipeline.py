@@ -1,10 +1,12 @@
 """``pipeline`` (``ros2 run gldt_ros pipeline``): start the GL-DT node graph, optionally replay a bag
 into it and record its outputs.
 
-Like a launch file, it starts each node of the graph (:data:`gldt_ros.interface.graph.NODES`) in
-its own process by default (``--in-process`` runs all of them in one executor instead, which is
-handy for debugging and profiling). With ``--bag`` it plays the bag's camera, camera_info and
-ground-truth topics into the graph, either at the bag's pace times ``--rate`` or in
+Like a launch file, it starts the nodes of the graph (:data:`gldt_ros.interface.graph.NODES`) in
+processes placed by ``--processes`` (:data:`gldt_ros.interface.graph.PROCESS_LAYOUTS`): by default
+the nodes a LOCAL frame passes through share one process and the global detector has its own;
+``--processes per-node`` gives each node its own; ``--in-process`` runs all of them in this
+process's executor, which is handy for debugging and profiling. With ``--bag`` it plays the
+bag's camera, camera_info and ground-truth topics into the graph, either at the bag's pace times ``--rate`` or in
 ``--lockstep``: frame t+1 is only published after ``/gldt/tracks`` has answered frame t, which
 makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver` plays and records).
 ``--record OUT.mcap`` writes every output topic, with its type, to an MCAP file. The run ends at
@@ -40,7 +42,6 @@ hand them on: ``pipeline --bag B --ros-args -p use_sim_time:=true -r camera/imag
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import re
 import signal
@@ -52,11 +53,12 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from gldt_ros.interface.graph import NODES, default_params_file
+from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, NODES, PROCESS_LAYOUTS, default_params_file
 from gldt_ros.launcher.heartbeat import Heartbeats
 from gldt_ros.runtime.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.runtime.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, background_executor, executor_kind
 from gldt_ros.runtime.heap_trim import DEFAULT_PERIOD_S, HEAP_TRIM_PERIOD_ENV, start_heap_trimming
+from gldt_ros.runtime.node_group import group_json
 from gldt_ros.runtime.shm_cleanup import MIN_AGE_S, remove_dead_segments
 from gldt_ros.runtime.stack_dump import STACK_DUMP_SIGNAL
 from gldt_ros.runtime.teardown_limit import TEARDOWN_LIMIT_S, TEARDOWN_TIMEOUT_EXIT
@@ -178,7 +180,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     parser.add_argument("--params", type=Path, default=None, help="ROS parameter YAML (default: config/gldt.yaml)")
     parser.add_argument("--namespace", default="", help="namespace of the graph (one per camera)")
-    parser.add_argument("--in-process", action="store_true", help="run all nodes in this process")
+    placement = parser.add_mutually_exclusive_group()
+    placement.add_argument("--in-process", action="store_true", help="run all nodes in this process")
+    placement.add_argument(
+        "--processes",
+        choices=list(PROCESS_LAYOUTS),
+        default=DEFAULT_PROCESS_LAYOUT,
+        help="how the nodes share processes: grouped, the frame buffer, scheduler, tracker and local "
+        "detector in one and the global detector in its own (no process hop within a LOCAL frame; a "
+        "group restarts as a whole); per-node, each in its own. Default %(default)s",
+    )
     parser.add_argument(
         "--domain-id",
         type=int,
@@ -294,12 +305,25 @@ def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
     return ros_args + list(getattr(args, "ros_args", []))
 
 
-def node_command(name: str, args: argparse.Namespace) -> list[str]:
-    """Command line of one node process."""
-    command = [sys.executable, "-m", NODES[name], *node_ros_args(name, args)]
+def node_arguments(name: str, args: argparse.Namespace) -> list[str]:
+    """Command-line arguments of one node: :func:`node_ros_args` and the graph's namespace."""
+    arguments = node_ros_args(name, args)
     if args.namespace:
-        command += ["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"]
-    return command
+        arguments += ["--ros-args", "-r", f"__ns:=/{args.namespace.strip('/')}"]
+    return arguments
+
+
+def process_command(group: Sequence[str], args: argparse.Namespace) -> list[str]:
+    """Command line of the process of a group of nodes: a lone node's own module (what its
+    ``ros2 run`` executable runs), or :mod:`gldt_ros.runtime.node_group` for several."""
+    if len(group) == 1:
+        return [sys.executable, "-m", NODES[group[0]], *node_arguments(group[0], args)]
+    return [sys.executable, "-m", "gldt_ros.runtime.node_group", spare_request(group, args).strip()]
+
+
+def spare_request(group: Sequence[str], args: argparse.Namespace) -> str:
+    """The line that turns a warm spare into the process of ``group`` (:mod:`gldt_ros.runtime.spare`)."""
+    return group_json([(name, node_arguments(name, args)) for name in group]) + "\n"
 
 
 def player_ros_args(args: argparse.Namespace) -> list[str] | None:
@@ -393,6 +417,10 @@ HUNG_RESTART_PAUSE_S = 0.5
 class NodeProcesses:
     """The child node processes: start, supervise (restart the ones that die or hang), stop.
 
+    The nodes share processes as ``--processes`` says (:data:`gldt_ros.interface.graph.PROCESS_LAYOUTS`):
+    :attr:`processes` maps each node to its process, the same one for the nodes of a group, and a
+    group is started, killed and restarted as a whole.
+
     A node hangs when its heartbeat, its periodic ``/diagnostics`` status, stops (:attr:`heartbeats`,
     fed by the driver): it is killed, then restarted like a node that died.
 
@@ -405,6 +433,7 @@ class NodeProcesses:
         self.args = args
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self.restarts: dict[str, int] = {name: 0 for name in NODES}
+        self.groups: tuple[tuple[str, ...], ...] = PROCESS_LAYOUTS[getattr(args, "processes", DEFAULT_PROCESS_LAYOUT)]
         self.supervising = False
         self.spare: subprocess.Popen[bytes] | None = None
         self._spare_due = time.monotonic() + args.spare_delay  # start-up, like a restart, goes first
@@ -414,26 +443,37 @@ class NodeProcesses:
         self._lock = threading.Lock()
         #: When each node's current process last sent its status (``GraphDriver`` tells it).
         self.heartbeats = Heartbeats()
-        for name in NODES:
-            self._start(name)
+        for group in self.groups:
+            self._start(group[0])
+
+    def group_of(self, name: str) -> tuple[str, ...]:
+        """The nodes that share ``name``'s process (``name`` alone in a layout of one per node)."""
+        return next((group for group in getattr(self, "groups", ()) if name in group), (name,))
 
     def _start(self, name: str) -> None:
+        """Start the process of ``name``'s group, from the warm spare where one waits."""
+        group = self.group_of(name)
+        label = "+".join(group)
         spare, self.spare = self.spare, None
         if spare is not None and spare.poll() is None and spare.stdin is not None:
             try:
-                request = json.dumps([name, *node_command(name, self.args)[3:]]) + "\n"
-                spare.stdin.write(request.encode())
+                spare.stdin.write(spare_request(group, self.args).encode())
                 spare.stdin.close()
-                self.processes[name] = spare
-                self.heartbeats.started(name, spare.pid)
-                print(f"pipeline: started {name} (pid {spare.pid}, the warm spare)", flush=True)
+                self._adopt(group, spare)
+                print(f"pipeline: started {label} (pid {spare.pid}, the warm spare)", flush=True)
                 return
             except OSError:
                 self._discard_spare(spare)  # it died meanwhile; start from scratch
-        process = spawn(node_command(name, self.args), env=node_environment(self.args.tune_malloc, self.args.executor))
-        self.processes[name] = process
-        self.heartbeats.started(name, process.pid)
-        print(f"pipeline: started {name} (pid {process.pid})", flush=True)
+        process = spawn(
+            process_command(group, self.args), env=node_environment(self.args.tune_malloc, self.args.executor)
+        )
+        self._adopt(group, process)
+        print(f"pipeline: started {label} (pid {process.pid})", flush=True)
+
+    def _adopt(self, group: Sequence[str], process: subprocess.Popen[bytes]) -> None:
+        for name in group:
+            self.processes[name] = process
+            self.heartbeats.started(name, process.pid)
 
     def keep_spare(self) -> None:
         """Start a spare if none is waiting, a restart is still allowed, and ``--spare-delay``
@@ -492,14 +532,14 @@ class NodeProcesses:
             if not self.supervising:
                 return []
             hung = self._kill_silent()
-            dying = [
-                name
-                for name, process in self.processes.items()
-                if process.poll() is not None and self.restarts[name] < self.args.max_restarts
-            ]
-        if any(name in hung for name in dying):
+            dying: list[tuple[str, ...]] = []  # the groups whose process ended, each once
+            for name, process in self.processes.items():
+                group = self.group_of(name)
+                if process.poll() is not None and self.restarts[name] < self.args.max_restarts and group not in dying:
+                    dying.append(group)
+        if any(name in hung for group in dying for name in group):
             time.sleep(HUNG_RESTART_PAUSE_S)
-        for name in dying:
+        for name in [name for group in dying for name in group]:
             if before_restart is not None:
                 try:
                     before_restart(name)
@@ -509,15 +549,18 @@ class NodeProcesses:
         with self._lock:
             if not self.supervising:
                 return restarted
-            for name in dying:
-                self.restarts[name] += 1
-                code = self.processes[name].returncode
-                attempt = f"{self.restarts[name]}/{self.args.max_restarts}"
-                if name not in hung:  # a hung node was announced when killed
-                    print(f"pipeline: node {name} exited with code {code}; restarting ({attempt})", flush=True)
-                self._start(name)
+            for group in dying:
+                for name in group:
+                    self.restarts[name] += 1
+                code = self.processes[group[0]].returncode
+                attempt = f"{self.restarts[group[0]]}/{self.args.max_restarts}"
+                if group[0] not in hung:  # a hung node was announced when killed
+                    print(
+                        f"pipeline: node {'+'.join(group)} exited with code {code}; restarting ({attempt})", flush=True
+                    )
+                self._start(group[0])
                 self._spare_due = time.monotonic() + self.args.spare_delay
-                restarted.append(name)
+                restarted.extend(group)
             self.keep_spare()
         if restarted:
             report_removed_segments()
@@ -531,6 +574,8 @@ class NodeProcesses:
         hung: set[str] = set()
         for name, silent_s in self.heartbeats.silent().items():
             process = self.processes[name]
+            if name in hung:
+                continue  # its group's process was killed for another of its nodes
             if process.poll() is not None:
                 continue  # it died: restarted as such
             if self.restarts[name] < self.args.max_restarts:
@@ -544,7 +589,7 @@ class NodeProcesses:
             except subprocess.TimeoutExpired:
                 print(f"pipeline: node {name} survived SIGKILL for 2 s", flush=True)
                 continue
-            hung.add(name)
+            hung.update(self.group_of(name))
         return hung
 
     def _clean_segments_if_due(self) -> None:
@@ -563,12 +608,16 @@ class NodeProcesses:
             spare, self.spare = self.spare, None
         if spare is not None:
             self._discard_spare(spare)
-        for process in self.processes.values():
+        by_process: dict[int, tuple[str, subprocess.Popen[bytes]]] = {}  # a group's process once, named by its nodes
+        for name, process in self.processes.items():
+            label = by_process[id(process)][0] + "+" + name if id(process) in by_process else name
+            by_process[id(process)] = (label, process)
+        for _, process in by_process.values():
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
         deadline = time.monotonic() + grace_s
         unclean = 0
-        for name, process in self.processes.items():
+        for name, process in by_process.values():
             try:
                 code = process.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
@@ -657,7 +706,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         expected = [f"{args.namespace.strip('/')}/{n}".strip("/") for n in NODES]
         if not driver.wait_for_nodes(expected, args.startup_timeout, lambda: children.dead() if children else []):
             return 1
-        spun_by = f"the {args.executor} executor" + (", all in this process" if args.in_process else "")
+        placed = "all in this process" if args.in_process else f"processes {args.processes}"
+        spun_by = f"the {args.executor} executor, {placed}"
         print(f"pipeline: {len(NODES)} nodes up in {time.monotonic() - started:.1f} s ({spun_by})", flush=True)
         if children is not None:
             children.supervising = True

@@ -62,6 +62,9 @@ FRAMES_UNREADABLE = "frames_unreadable"
 #: that is down answers none, which is not a skip).
 PAIRS_TRACKED = 64
 
+#: It sends frames (pairs, crops) of a MiB or more: its process uses the large-segment DDS profile.
+PUBLISHES_FRAMES = True
+
 
 @dataclass
 class BufferedFrame:
@@ -343,7 +346,7 @@ def create_node(cli_args: list[str] | None = None) -> FramePairBuffer:
 
 
 def main() -> int:
-    return run_node(create_node, publishes_frames=True)
+    return run_node(create_node, publishes_frames=PUBLISHES_FRAMES)
 
 
 if __name__ == "__main__":

@@ -123,15 +123,25 @@ def spin_node(node: Any, kind: str) -> None:
     """Spin ``node`` on the ``kind`` executor until its context shuts down (Ctrl-C, SIGTERM via
     rclpy's handler, ``rclpy.shutdown``). Shutdown exceptions propagate, for the caller to
     treat as a stop, as they do from ``rclpy.spin``."""
+    spin_nodes([node], kind)
+
+
+def spin_nodes(nodes: list[Any], kind: str) -> None:
+    """:func:`spin_node` for several nodes of one context, on one executor (a process that
+    hosts a group of the graph's nodes, :mod:`gldt_ros.runtime.node_group`)."""
     import rclpy
 
     if kind == SINGLE:
         # rclpy's global executor, not an explicit SingleThreadedExecutor: with the latter a node
         # sometimes failed to stop on SIGINT within pipeline's grace period.
-        rclpy.spin(node)
+        executor = rclpy.get_global_executor()
+        for node in nodes[1:]:
+            executor.add_node(node)
+        rclpy.spin(nodes[0])
         return
-    spinner = EventsSpinner(node.context)
-    spinner.add_node(node)
+    spinner = EventsSpinner(nodes[0].context)
+    for node in nodes:
+        spinner.add_node(node)
     try:
         spinner.spin()
     finally:

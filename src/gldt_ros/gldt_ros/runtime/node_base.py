@@ -24,8 +24,9 @@ ROS-time timer stops whenever ``/clock`` does (before a replay started, or pause
 which kept the graph from ever reporting its links. Message stamps and ``get_clock()`` still
 follow ``use_sim_time``.
 
-:func:`run_node` is every node's ``main``: it applies the process-wide runtime settings of this
-package (executor, heap trimming, DDS profile, stack dumps, bounded teardown) and spins the node.
+:func:`run_node` is every node's ``main`` (:func:`run_nodes` that of a process hosting several):
+it applies the process-wide runtime settings of this package (executor, heap trimming, DDS
+profile, stack dumps, bounded teardown) and spins the node.
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ from __future__ import annotations
 import os
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -47,7 +48,7 @@ from gldt_ros.interface.graph_links import link_key_values, own_link_counts, par
 from gldt_ros.interface.params import SCHEMA, ParamSpec
 from gldt_ros.launcher.heartbeat import PERIOD_KEY, PID_KEY
 from gldt_ros.runtime.dds_profile import use_frames_profile_if_shipped
-from gldt_ros.runtime.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_node
+from gldt_ros.runtime.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_nodes
 from gldt_ros.runtime.heap_trim import start_heap_trimming, trim_period_from_env
 from gldt_ros.runtime.log_throttle import LogThrottle
 from gldt_ros.runtime.stack_dump import dump_stacks_on_request
@@ -269,6 +270,15 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
     ``$GLDT_HEAP_TRIM_PERIOD``, which ``pipeline`` sets, hands freed heap pages back to the OS that
     often (:mod:`gldt_ros.runtime.heap_trim`).
     """
+    return run_nodes([node_factory], args, publishes_frames)
+
+
+def run_nodes(
+    node_factories: Sequence[Callable[[], Node]], args: list[str] | None = None, publishes_frames: bool = False
+) -> int:
+    """:func:`run_node` for a process hosting several nodes on one executor
+    (:mod:`gldt_ros.runtime.node_group`): they start in order, and one that cannot start stops
+    the process with exit 1, as a lone node's would."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
@@ -284,15 +294,17 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
         quiet_sigint_for_events_executor()
     dump_stacks_on_request()
     rclpy.init(args=args)
-    node = None
+    nodes: list[Node] = []
     try:
-        node = node_factory()
-        print(f"[gldt] {node.get_name()} ready", flush=True)
-        spin_node(node, executor)
+        for factory in node_factories:
+            nodes.append(factory())
+        for node in nodes:
+            print(f"[gldt] {node.get_name()} ready", flush=True)
+        spin_nodes(nodes, executor)
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, FileNotFoundError) as error:
-        if node is not None:
+        if len(nodes) == len(node_factories):
             raise  # callbacks are guarded; anything else escaping spin is a bug worth a traceback
         print(f"[gldt] cannot start: {error}", flush=True)
         return 1
@@ -303,7 +315,7 @@ def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, pu
             raise
     finally:
         limit_teardown()  # rclpy's destroy_node can hang; the node's work is done by now
-        if node is not None:
+        for node in nodes:
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
