@@ -16,6 +16,7 @@ from gldt_ros.interface.graph_links import (  # noqa: E402
     MATCHED_PUBLISHERS,
     MATCHED_SUBSCRIPTIONS,
     UNKNOWN_NODE_NAME,
+    LiveEndpoints,
     link_key_values,
     missing_links,
     node_endpoint_gids,
@@ -115,6 +116,29 @@ def test_a_link_is_missing_until_the_node_matched_every_endpoint_the_observer_se
     reports["mode_scheduler"][MATCHED_PUBLISHERS + "/gldt/detections"] = 2
     assert missing_links(observer, reports) == []
     assert reporting_nodes_missing(["jptrack_tracker", "local_detector"], reports) == ["local_detector"]
+
+
+def test_the_endpoints_of_a_killed_process_do_not_hold_a_relink_up() -> None:
+    """A killed process's endpoints stay visible until its lease runs out; the new process cannot
+    match them, so judged against them the relink after a restart would wait out the lease."""
+    graph = GraphWithOwners(
+        [
+            ("pub", "/gldt/scheduler/state", "mode_scheduler", b"dead-state"),
+            ("pub", "/gldt/scheduler/state", "mode_scheduler", b"new-state"),
+            ("sub", "/gldt/scheduler/state", "frame_pair_buffer", b"dead-buffer"),
+            ("sub", "/gldt/scheduler/state", "frame_pair_buffer", b"new-buffer"),
+        ]
+    )
+    reports = {
+        "frame_pair_buffer": {MATCHED_PUBLISHERS + "/gldt/scheduler/state": 1},
+        "mode_scheduler": {MATCHED_SUBSCRIPTIONS + "/gldt/scheduler/state": 1},
+    }
+    everything = LiveEndpoints(graph, set())
+    assert missing_links(everything, reports) == [
+        "frame_pair_buffer: /gldt/scheduler/state matched 1 of 2 publishers",
+        "mode_scheduler: /gldt/scheduler/state matched 1 of 2 subscriptions",
+    ]
+    assert missing_links(LiveEndpoints(graph, {b"dead-state", b"dead-buffer"}), reports) == []
 
 
 def test_own_link_counts_follow_dds_matching_and_leave_out_infrastructure_topics() -> None:

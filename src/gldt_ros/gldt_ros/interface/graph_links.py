@@ -136,6 +136,23 @@ def node_endpoint_gids(
     return gids
 
 
+class LiveEndpoints:
+    """The endpoint counts ``observer`` sees, less the endpoints ``dead``: those of a process that
+    was killed stay visible until its DDS lease runs out (5 s with the shipped profile), and no
+    node can match them, so a relink judged against them would wait out the lease."""
+
+    def __init__(self, observer: EndpointOwners, dead: set[bytes]) -> None:
+        self.observer, self.dead = observer, dead
+
+    def count_publishers(self, topic_name: str, /) -> int:
+        infos = self.observer.get_publishers_info_by_topic(topic_name)
+        return sum(bytes(info.endpoint_gid) not in self.dead for info in infos)
+
+    def count_subscribers(self, topic_name: str, /) -> int:
+        infos = self.observer.get_subscriptions_info_by_topic(topic_name)
+        return sum(bytes(info.endpoint_gid) not in self.dead for info in infos)
+
+
 def reporting_nodes_missing(expected: Iterable[str], reports: dict[str, dict[str, int]]) -> list[str]:
     """Expected node names that have not reported link counts yet."""
     return sorted(name for name in expected if name not in reports)

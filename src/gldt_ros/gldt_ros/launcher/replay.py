@@ -51,6 +51,7 @@ from gldt_core.io.ros_types import typestore
 from gldt_ros.interface import qos, topics
 from gldt_ros.interface.graph import NODES, WARM_UP_FRAME_ID
 from gldt_ros.interface.graph_links import (
+    LiveEndpoints,
     missing_links,
     node_endpoint_gids,
     own_link_counts,
@@ -369,7 +370,10 @@ class GraphDriver(Node):
             waiting = {name for name in waiting if not self._new_process_visible(name, restarted[name])}
             if waiting:
                 stop.wait(0.02)
-        linked = not waiting and self.wait_until_linked(self.graph_nodes, stop, max(0.0, deadline - time.monotonic()))
+        dead_gids = {gid for endpoints in restarted.values() for gids in endpoints.values() for gid in gids}
+        linked = not waiting and self.wait_until_linked(
+            self.graph_nodes, stop, max(0.0, deadline - time.monotonic()), dead_endpoints=dead_gids
+        )
         with self._answered_cv:
             for name, endpoints in restarted.items():
                 if self._restarted.get(name) is endpoints:
@@ -482,9 +486,13 @@ class GraphDriver(Node):
             return
         self.wait_until_linked(self.graph_nodes, stop, max(0.0, deadline - time.monotonic()))
 
-    def wait_until_linked(self, node_names: list[str], stop: threading.Event, timeout_s: float) -> bool:
+    def wait_until_linked(
+        self, node_names: list[str], stop: threading.Event, timeout_s: float, dead_endpoints: set[bytes] | None = None
+    ) -> bool:
         """Block until each named node, and this one, has matched every endpoint this process sees
-        on its topics (:mod:`gldt_ros.interface.graph_links`); on timeout log what is missing and go on."""
+        on its topics (:mod:`gldt_ros.interface.graph_links`), but ``dead_endpoints`` (those of
+        killed processes, visible until their lease runs out); on timeout log what is missing and go on."""
+        observer = LiveEndpoints(self, dead_endpoints) if dead_endpoints else self
         deadline = time.monotonic() + timeout_s
         missing: list[str] = []
         while not stop.is_set():
@@ -493,7 +501,7 @@ class GraphDriver(Node):
             reports = {name: counts for name, status in statuses.items() if (counts := parse_link_counts(status))}
             silent = reporting_nodes_missing(node_names, reports)
             reports[self.get_name()] = own_link_counts(self)
-            missing = [f"{name}: no link report yet" for name in silent] + missing_links(self, reports)
+            missing = [f"{name}: no link report yet" for name in silent] + missing_links(observer, reports)
             if not missing:
                 self.get_logger().info(
                     f"every graph link matched after {timeout_s - (deadline - time.monotonic()):.2f} s"
