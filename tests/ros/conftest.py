@@ -40,6 +40,7 @@ def node_processes_of() -> Callable[[ProcessMap], Any]:
         children = object.__new__(NodeProcesses)
         children.args = argparse.Namespace()
         children.processes = processes
+        children.groups = tuple((name,) for name in processes)
         children.restarts = {name: 0 for name in processes}
         children.supervising = True
         children.spare = None

@@ -38,10 +38,10 @@ def test_a_bad_request_is_refused_in_one_line(
 
 
 def test_a_group_request_names_each_node_with_its_own_arguments() -> None:
-    from gldt_ros.launcher.pipeline import parse_args, spare_request
+    from gldt_ros.launcher.pipeline import group_description, parse_args
 
     args = parse_args(["--lockstep", "--namespace", "cam", "--processes", "grouped"])
-    group = node_group.parse_group(spare_request(["frame_pair_buffer", "mode_scheduler"], args))
+    group = node_group.parse_group(group_description(["frame_pair_buffer", "mode_scheduler"], args))
     assert [name for name, _ in group] == ["frame_pair_buffer", "mode_scheduler"]
     buffer_args, scheduler_args = (arguments for _, arguments in group)
     assert "skip_global_when_busy:=false" in buffer_args and "lockstep:=true" in scheduler_args

@@ -7,10 +7,11 @@ Runs on the same bag, in one invocation so the machine's load is shared alike:
 1. offline: ``GLDTSystem`` in this process reading the bag as ``gldt run --bag`` does - the
    core's own time per frame (the peer). It includes decoding each camera frame, because the
    graph decodes it too (in frame_pair_buffer); the time without decoding is printed beside it;
-2. lockstep replay through the node processes (``--processes``) - time per frame, whose excess over (1) is what
-   the ROS transport and process hops cost. (1) and (2) alternate ``--repeats`` times and the
-   overhead is the median of each adjacent pair's ratio: a shared machine's speed can drift
-   several-fold within minutes, so one pair alone can be far off in either direction;
+2. lockstep replay through the node processes (placed as ``--processes`` says) - time per frame,
+   whose excess over (1) is what the ROS transport and process hops cost. (1) and (2) alternate
+   ``--repeats`` times and the overhead is the median of each adjacent pair's ratio: a shared
+   machine's speed can drift several-fold within minutes, so one pair alone can be far off in
+   either direction;
 3. free-running replay at the bag's rate x ``--rate`` - throughput, p50/p99 latency from
    publishing a camera frame to receiving its ``/gldt/tracks``, and frames left unanswered;
 4. start-up (issue #8, goal <= 5 s): from launching the node processes to every node ready and

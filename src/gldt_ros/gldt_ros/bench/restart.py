@@ -189,15 +189,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(json.dumps(results, indent=2))
         return 0
     print(f"restart of one node, lockstep replay of {args.bag} (median of {args.repeats}, and the worst run); seconds")
+    width = max(18, *(len(victim) for victim in results))
     print(
-        f"{'node process':<18} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'worst':>6} {'goal':>5} "
-        f"{'cold start':>11} {'ratio':>6}"
+        f"{'node process':<{width}} {'start':>6} {'relink':>7} {'answer':>7} {'to tracks':>10} {'worst':>6} "
+        f"{'goal':>5} {'cold start':>11} {'ratio':>6}"
     )
     for victim, r in results.items():
         verdict = "OK" if r["worst_restart_to_tracks"] <= GOAL_S else "MISS"  # every restart, not the typical one
         ratio = r["restart_to_tracks"] / r["cold_start_to_tracks"]
         print(
-            f"{victim:<18} {r['start']:6.2f} {r['relink']:7.2f} {r['answer']:7.2f} {r['restart_to_tracks']:10.2f} "
+            f"{victim:<{width}} {r['start']:6.2f} {r['relink']:7.2f} {r['answer']:7.2f} {r['restart_to_tracks']:10.2f} "
             f"{r['worst_restart_to_tracks']:6.2f} {verdict:>5} {r['cold_start_to_tracks']:11.2f} {ratio:6.2f}"
         )
     return 0

@@ -6,9 +6,10 @@ processes placed by ``--processes`` (:data:`gldt_ros.interface.graph.PROCESS_LAY
 the nodes a LOCAL frame passes through share one process and the global detector has its own;
 ``--processes per-node`` gives each node its own; ``--in-process`` runs all of them in this
 process's executor, which is handy for debugging and profiling. With ``--bag`` it plays the
-bag's camera, camera_info and ground-truth topics into the graph, either at the bag's pace times ``--rate`` or in
-``--lockstep``: frame t+1 is only published after ``/gldt/tracks`` has answered frame t, which
-makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver` plays and records).
+bag's camera, camera_info and ground-truth topics into the graph, either at the bag's pace
+times ``--rate`` or in ``--lockstep``: frame t+1 is only published after ``/gldt/tracks`` has
+answered frame t, which makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver`
+plays and records).
 ``--record OUT.mcap`` writes every output topic, with its type, to an MCAP file. The run ends at
 the bag's end or on Ctrl-C, and the child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if
 they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`), and so is
@@ -318,12 +319,13 @@ def process_command(group: Sequence[str], args: argparse.Namespace) -> list[str]
     ``ros2 run`` executable runs), or :mod:`gldt_ros.runtime.node_group` for several."""
     if len(group) == 1:
         return [sys.executable, "-m", NODES[group[0]], *node_arguments(group[0], args)]
-    return [sys.executable, "-m", "gldt_ros.runtime.node_group", spare_request(group, args).strip()]
+    return [sys.executable, "-m", "gldt_ros.runtime.node_group", group_description(group, args)]
 
 
-def spare_request(group: Sequence[str], args: argparse.Namespace) -> str:
-    """The line that turns a warm spare into the process of ``group`` (:mod:`gldt_ros.runtime.spare`)."""
-    return group_json([(name, node_arguments(name, args)) for name in group]) + "\n"
+def group_description(group: Sequence[str], args: argparse.Namespace) -> str:
+    """The JSON that names each node of ``group`` with its arguments (:mod:`gldt_ros.runtime.node_group`):
+    what a group process is started with, and what turns a warm spare into it."""
+    return group_json([(name, node_arguments(name, args)) for name in group])
 
 
 def player_ros_args(args: argparse.Namespace) -> list[str] | None:
@@ -433,7 +435,7 @@ class NodeProcesses:
         self.args = args
         self.processes: dict[str, subprocess.Popen[bytes]] = {}
         self.restarts: dict[str, int] = {name: 0 for name in NODES}
-        self.groups: tuple[tuple[str, ...], ...] = PROCESS_LAYOUTS[getattr(args, "processes", DEFAULT_PROCESS_LAYOUT)]
+        self.groups: tuple[tuple[str, ...], ...] = PROCESS_LAYOUTS[args.processes]
         self.supervising = False
         self.spare: subprocess.Popen[bytes] | None = None
         self._spare_due = time.monotonic() + args.spare_delay  # start-up, like a restart, goes first
@@ -448,7 +450,7 @@ class NodeProcesses:
 
     def group_of(self, name: str) -> tuple[str, ...]:
         """The nodes that share ``name``'s process (``name`` alone in a layout of one per node)."""
-        return next((group for group in getattr(self, "groups", ()) if name in group), (name,))
+        return next((group for group in self.groups if name in group), (name,))
 
     def _start(self, name: str) -> None:
         """Start the process of ``name``'s group, from the warm spare where one waits."""
@@ -457,7 +459,7 @@ class NodeProcesses:
         spare, self.spare = self.spare, None
         if spare is not None and spare.poll() is None and spare.stdin is not None:
             try:
-                spare.stdin.write(spare_request(group, self.args).encode())
+                spare.stdin.write((group_description(group, self.args) + "\n").encode())
                 spare.stdin.close()
                 self._adopt(group, spare)
                 print(f"pipeline: started {label} (pid {spare.pid}, the warm spare)", flush=True)
