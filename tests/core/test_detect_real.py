@@ -79,3 +79,26 @@ def test_global_detector_finds_drones_in_full_frames() -> None:
     # With the second stage at its default threshold: 18 of 20 and 3 second boxes (2026-12-03).
     assert hits >= 16, f"global detector found {hits}/{total} drones"
     assert extra <= 4
+
+
+def test_an_roi_of_a_small_frame_runs_at_a_smaller_side_and_finds_the_same_drones() -> None:
+    """On these 640x512 clips the ROI is 142 px (Table I's 300 px of 1080 lines, scaled), 121 px at
+    the local model's scale: the shipped model, whose sides are dynamic, runs it at 128 px instead
+    of 256 px of mostly padding, and boxes the drones as at 256 px."""
+    detector = LocalDetector(num_threads=1, second_stage=None, score_threshold=0.25)
+    assert detector.batch_side([142, 143]) == 128 and detector.batch_side([300]) == detector.input_side == 256
+    sides: list[int] = []
+    run = detector.session.run
+    detector.session.run = lambda names, feed: (sides.append(next(iter(feed.values())).shape[2]), run(names, feed))[1]
+
+    found = {128: 0, 256: 0}
+    for clip in CLIPS:
+        for _, frame, gt in sampled_frames(clip):
+            cx, cy = (gt[0, 0] + gt[0, 2]) / 2 + 25, (gt[0, 1] + gt[0, 3]) / 2 - 20
+            roi = np.array([[cx - 71, cy - 71, cx + 71, cy + 71]]).round()
+            for side in (128, 256):
+                detector.batch_side = lambda _sides, side=side: side  # type: ignore[method-assign]
+                dets = detector.detect_rois(frame, roi)
+                found[side] += int(len(dets) > 0 and box_iou(dets[:, :4], gt).max() >= 0.5)
+    assert sides == [128, 256] * 20
+    assert found[256] >= 15 and found[128] >= found[256] - 1, found

@@ -12,6 +12,7 @@ import torch
 
 from gldt_core.detect import DetectorConfigError, GlobalDetector, LocalDetector
 from gldt_core.detect.postprocess import letterbox, rect_input_size, to_blob
+from gldt_core.export.dynamic_sides import DYNAMIC_SIDES, make_sides_dynamic
 from gldt_core.export.onnx_export import OPSET, example_inputs, export_onnx, torch_vs_onnx
 from gldt_core.paths import halmstad_root
 from gldt_core.training.models import Detector, ModelSpec
@@ -57,10 +58,41 @@ def test_global_export_matches_torch_at_several_sizes(exported) -> None:
         assert torch_vs_onnx(model, path, example_inputs(model, w, h, seed=w)) <= 1e-4
 
 
-def test_local_export_has_dynamic_batch(exported) -> None:
+def test_local_export_has_dynamic_batch_and_sides(exported) -> None:
     model, path = exported["local"]
     for batch in (1, 4):
         assert torch_vs_onnx(model, path, example_inputs(model, 64, 64, batch=batch, seed=batch)) <= 1e-4
+    for side in (32, 96):  # a smaller and a larger multiple of the card's input_multiple (32)
+        assert torch_vs_onnx(model, path, example_inputs(model, side, side, batch=2, seed=side)) <= 1e-4
+    assert json.loads(path.with_suffix(".json").read_text())["dynamic"] == DYNAMIC_SIDES
+
+
+def test_a_fixed_size_local_export_gets_dynamic_sides_with_the_same_outputs(exported, tmp_path: Path) -> None:
+    """The shipped local models were exported with a fixed side and their checkpoints are not in
+    the repo: ``gldt export --dynamic-sides`` rewrites the declared shape, and the graph then agrees
+    with torch at every side, the old one included."""
+    model, dynamic = exported["local"]
+    proto = onnx.load(str(dynamic))
+    for dim, side in zip(proto.graph.input[0].type.tensor_type.shape.dim[2:], (64, 64)):
+        dim.ClearField("dim_param")
+        dim.dim_value = side  # as the shipped files were: a fixed 64 x 64
+    fixed = tmp_path / "fixed.onnx"
+    onnx.save(proto, str(fixed))
+    fixed.with_suffix(".json").write_text(dynamic.with_suffix(".json").read_text())
+    out = tmp_path / "made_dynamic.onnx"
+    assert make_sides_dynamic(fixed, out) == 0.0
+    for side in (32, 64, 128):
+        assert torch_vs_onnx(model, out, example_inputs(model, side, side, batch=2, seed=side)) <= 1e-4
+    card = json.loads(out.with_suffix(".json").read_text())
+    assert (
+        card["dynamic"] == DYNAMIC_SIDES and card["name"] == "made_dynamic" and card["size_bytes"] == out.stat().st_size
+    )
+    ld = LocalDetector(out, second_stage=None)
+    assert (ld.input_side, ld.input_multiple) == (64, 32)
+    _, global_path = exported["global"]
+    with pytest.raises(ValueError, match="not an exported local detector"):
+        make_sides_dynamic(global_path, tmp_path / "global.onnx")
+    assert not (tmp_path / "global.onnx").exists()
 
 
 def test_card_is_written_and_embedded(exported) -> None:

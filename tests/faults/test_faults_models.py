@@ -191,11 +191,11 @@ def test_wrong_shaped_global_model_names_file_and_expected_shape(tmp_path: Path,
     "kwargs, expected",
     [
         ({"width": 32}, "(N, 3, S, S)"),
-        ({"height": "S", "width": "S"}, "(N, 3, S, S)"),
+        ({"height": "S", "width": "S"}, "no square input_size and input_multiple"),
         ({"n_inputs": 2}, "(N, 3, S, S)"),
         ({"output_shape": ("N", 3, 4)}, "(batch, 4 + num_classes, anchors)"),
     ],
-    ids=["not_square", "dynamic_side", "two_inputs", "no_class_rows"],
+    ids=["not_square", "dynamic_sides_without_a_card", "two_inputs", "no_class_rows"],
 )
 def test_wrong_shaped_local_model_names_file_and_expected_shape(tmp_path: Path, kwargs: dict, expected: str) -> None:
     path = local_model(tmp_path / "wrong_local.onnx", **kwargs)

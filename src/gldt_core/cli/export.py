@@ -12,12 +12,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="export a trained detector checkpoint to ONNX plus a JSON model card (needs torch)",
         description=(
             "Export best.pt/last.pt from `gldt train` to ONNX. The global model gets inputs previous/current "
-            "with dynamic height/width; the local model gets a dynamic batch. The card (same stem, .json) records "
-            "input size, strides, classes, training data and validation metrics, and the torch-vs-onnxruntime check."
+            "with dynamic height/width; the local model gets a dynamic batch and sides. The card (same stem, "
+            ".json) records input size, strides, classes, training data and validation metrics, and the "
+            "torch-vs-onnxruntime check."
         ),
     )
     parser.add_argument(
-        "checkpoint", help="checkpoint written by `gldt train` (or an .onnx model with --int8 or --rewrite-windows)"
+        "checkpoint",
+        help="checkpoint written by `gldt train` (or an .onnx model with --int8, --rewrite-windows or --dynamic-sides)",
     )
     parser.add_argument(
         "--out", default=None, help="output .onnx path (card written next to it); not with --feature-reuse"
@@ -44,6 +46,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help=(
             "rewrite an exported .onnx's 6-D STFF window permutes as 4-D ones "
             "(same outputs, checked; faster in onnxruntime; no torch needed)"
+        ),
+    )
+    parser.add_argument(
+        "--dynamic-sides",
+        action="store_true",
+        help=(
+            "give an exported local .onnx with a fixed input size dynamic sides, so ROIs smaller than its input "
+            "are run at the smallest size that holds them (same outputs at the old size, checked; no torch needed)"
         ),
     )
     parser.add_argument(
@@ -106,6 +116,7 @@ def _run(args: argparse.Namespace) -> int:
             ("--int8", args.int8),
             ("--rewrite-windows", args.rewrite_windows),
             ("--feature-reuse", args.feature_reuse),
+            ("--dynamic-sides", args.dynamic_sides),
         )
         if on
     ]
@@ -125,6 +136,14 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     if args.out is None:
         raise ValueError("--out is required (the .onnx file to write)")
+    if args.dynamic_sides:
+        from gldt_core.export.dynamic_sides import make_sides_dynamic
+
+        if Path(args.checkpoint).suffix != ".onnx":
+            raise ValueError(f"--dynamic-sides rewrites an exported .onnx model, got {args.checkpoint}")
+        diff = make_sides_dynamic(args.checkpoint, args.out)
+        print(f"wrote {args.out}: input sides dynamic, outputs within {diff:.1e} of {args.checkpoint}")
+        return 0
     if args.rewrite_windows:
         from gldt_core.detect.feature_reuse import features_path
         from gldt_core.export.window_rewrite import rewrite_model_file

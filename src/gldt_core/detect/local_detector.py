@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -72,15 +73,9 @@ class LocalDetector(OnnxDetector):
                 "a local detector needs one (N, 3, S, S) batch of ROI crops"
             )
         model_input = inputs[0]
-        check_image_input(self.model_path, model_input, "(N, 3, S, S) float32 RGB ROI crops with a fixed square size S")
-        h, w = model_input.shape[2], model_input.shape[3]
-        if not (isinstance(h, int) and isinstance(w, int) and h == w):
-            raise DetectorConfigError(
-                f"{self.model_path}: input {model_input.name!r} has shape {model_input.shape}; "
-                "expected (N, 3, S, S) with a fixed square S"
-            )
+        check_image_input(self.model_path, model_input, "(N, 3, S, S) float32 RGB ROI crops")
         self.input_name = model_input.name
-        self.input_side = int(h)
+        self.input_side, self.input_multiple = self._input_geometry(model_input)
         # The scale the model learned its objects at (an ROI of ``roi_side`` px to the input):
         # smaller ROIs are padded, not enlarged, so their targets keep that size.
         self.max_scale = self.input_side / float(self.card.get("roi_side", self.input_side))
@@ -93,6 +88,41 @@ class LocalDetector(OnnxDetector):
             score_threshold=self.score_threshold,
             classes=self.classes,
         )
+
+    def _input_geometry(self, model_input: Any) -> tuple[int, int | None]:
+        """``(S, multiple)``: the square input side the ROIs are scaled for, and, for a model whose
+        height and width are dynamic, the multiple its input sides must be (None: a fixed S).
+        A dynamic model takes S and the multiple from its card (``input_size``, ``input_multiple``)."""
+        h, w = model_input.shape[2], model_input.shape[3]
+        if isinstance(h, int) and isinstance(w, int):
+            if h != w:
+                raise DetectorConfigError(
+                    f"{self.model_path}: input {model_input.name!r} has shape {model_input.shape}; "
+                    "expected (N, 3, S, S) with a square S"
+                )
+            return int(h), None
+        size = self.card.get("input_size")
+        multiple = self.card.get("input_multiple")
+        if not (isinstance(size, list) and len(size) == 2 and size[0] == size[1] and isinstance(multiple, int)):
+            raise DetectorConfigError(
+                f"{self.model_path}: input {model_input.name!r} has dynamic sides {model_input.shape}, but its card "
+                "gives no square input_size and input_multiple to scale the ROIs for"
+            )
+        side = int(size[0])
+        if multiple < 1 or side % multiple:
+            raise DetectorConfigError(f"{self.model_path}: card input_size {size} is not a multiple of {multiple}")
+        return side, multiple
+
+    def batch_side(self, crop_sides: Sequence[int]) -> int:
+        """The square input side of one batch of crops whose longer sides are ``crop_sides``: the
+        model's S, or for a model with dynamic sides the smallest multiple that holds every crop
+        at :attr:`max_scale`. On a 640x512 frame a scaled ROI of 142 px fits 128 instead of the
+        256 that a 300 px ROI of a 1080p frame needs: the padding is not computed."""
+        if self.input_multiple is None or not crop_sides:
+            return self.input_side
+        scaled = max(min(self.input_side, int(round(side * self.max_scale))) for side in crop_sides)
+        multiple = self.input_multiple
+        return min(self.input_side, max(multiple, -(-scaled // multiple) * multiple))
 
     @staticmethod
     def _check_rois(rois: np.ndarray, frame_w: int, frame_h: int) -> np.ndarray:
@@ -150,7 +180,7 @@ class LocalDetector(OnnxDetector):
             raise ValueError(f"{len(previous_crops)} previous crops but {len(crops)} crops")
         if len(rois) == 0:
             return np.zeros((0, LOCAL_COLUMNS), dtype=np.float32)
-        side = self.input_side
+        side = self.batch_side([max(int(r[2] - r[0]), int(r[3] - r[1])) for r in rois])
         inputs, mappings, pairs = [], [], []
         for index, (crop, roi) in enumerate(zip(crops, rois)):
             expected = (int(roi[3] - roi[1]), int(roi[2] - roi[0]))

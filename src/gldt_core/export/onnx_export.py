@@ -3,7 +3,9 @@
 * Global (AM-YOLO): inputs ``previous`` and ``current``, each ``(1, 3, H, W)`` float RGB in [0, 1];
   ``H`` and ``W`` are dynamic (any multiple of the card's ``input_multiple``) so the runtime can feed
   a rectangular input that matches the frame's aspect ratio (e.g. 640x384 for 1080p).
-* Local: input ``images`` ``(N, 3, S, S)`` with a dynamic batch ``N`` (all ROIs of a frame at once).
+* Local: input ``images`` ``(N, 3, S, S)`` with a dynamic batch ``N`` (all ROIs of a frame at once)
+  and dynamic sides: ``S`` any multiple of the card's ``input_multiple`` up to its ``input_size``,
+  as small as the frame's ROIs allow (:mod:`gldt_core.export.dynamic_sides`).
 * Output ``detections`` ``(B, 4 + nc, A)``: xyxy boxes normalised to the input width/height (multiply
   by ``(W, H, W, H)`` for input pixels) and per-class scores.
 
@@ -25,6 +27,7 @@ import numpy as np
 import torch
 
 from gldt_core.detect.session import CARD_KEY
+from gldt_core.export.dynamic_sides import DYNAMIC_SIDES
 from gldt_core.training.data import CLASS_NAMES
 from gldt_core.training.models import Detector
 
@@ -55,7 +58,7 @@ def export_onnx(model: Detector, path: Path, width: int, height: int, card: dict
         dynamic = {name: {2: "height", 3: "width"} for name in names}
         dynamic["detections"] = {2: "anchors"}
     else:
-        dynamic = {"images": {0: "batch"}, "detections": {0: "batch"}}
+        dynamic = {"images": {0: "batch", 2: "height", 3: "width"}, "detections": {0: "batch", 2: "anchors"}}
     tmp = path.with_name(path.name + ".tmp")
     with torch.no_grad(), warnings.catch_warnings():
         # Shape checks in forward() run on concrete sizes while tracing; the exported graph keeps
@@ -93,7 +96,7 @@ def export_onnx(model: Detector, path: Path, width: int, height: int, card: dict
             "box_format": "xyxy_normalized",
             "input_size": [width, height],
             "input_multiple": model.spec.input_multiple,
-            "dynamic": "height/width" if model.spec.dual_frame else "batch",
+            "dynamic": "height/width" if model.spec.dual_frame else DYNAMIC_SIDES,
             "strides": list(model.spec.strides),
             "classes": list(CLASS_NAMES[: model.spec.num_classes]),
             "class_ids": list(CLASS_IDS[: model.spec.num_classes]),
