@@ -54,20 +54,24 @@ def gd_stretch_call(detector: Any, frames: list[Any]) -> Callable[[], Any]:
 
 def detector_calls(path: Path, threads: int) -> list[tuple[str, str, Callable[[], Any]]]:
     """``(label, kind, call)`` rows for one model: what it is (``global``/``local``, told by its
-    inputs) and one timed call. An AM-YOLO with a split pair (``gldt export --feature-reuse``)
+    card or else its inputs) and one timed call. An AM-YOLO with a split pair (``gldt export --feature-reuse``)
     gets a second row without it, so the reuse shows as a ratio measured in the same rounds."""
     import numpy as np
 
     from gldt_core.detect import GlobalDetector, LocalDetector
     from gldt_core.detect.session import open_session
 
-    session, _ = open_session(path, ("CPUExecutionProvider",), None, optimize_graph=False)
+    session, card = open_session(path, ("CPUExecutionProvider",), None, optimize_graph=False)
     inputs = session.get_inputs()
     rng = np.random.default_rng(0)
     frames = [rng.integers(90, 170, size=(1080, 1920, 3), dtype=np.uint8) for _ in range(2)]
-    # Local models have one input of a fixed square size; global ones (AM-YOLO takes two frames,
-    # its no-STFF ablation one) have a dynamic height and width.
-    if len(inputs) == 2 or not all(isinstance(side, int) for side in inputs[0].shape[2:]):
+    # The card says which it is; without one, a local model has one input of a fixed square size
+    # and a global one (AM-YOLO takes two frames, its no-STFF ablation one) a dynamic height and width.
+    if "task" in card:
+        is_global = card["task"] != "local"
+    else:
+        is_global = len(inputs) == 2 or not all(isinstance(side, int) for side in inputs[0].shape[2:])
+    if is_global:
         detector = GlobalDetector(model_path=path, num_threads=threads)
         rows = [(str(path), "global", gd_stretch_call(detector, frames))]
         if detector.feature_reuse is not None:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from gldt_core.detect.postprocess import letterbox, rect_input_size, to_blob
+from gldt_core.detect.session import read_card
 
 
 def calibration_frames(root: Path | str, count: int, seed: int = 0) -> Iterator[np.ndarray]:
@@ -42,10 +43,15 @@ def quantize_model(model: Path | str, out: Path | str, root: Path | str, count: 
         raise FileNotFoundError(f"model not found: {model}")
     session = ort.InferenceSession(str(model), providers=["CPUExecutionProvider"])
     inputs = session.get_inputs()
+    card = read_card(session, model)
+    # A local model (its card says so; without a card, one input of a fixed square side) gets
+    # ROI crops at its full input side, a global one whole frames.
+    local_side = inputs[0].shape[2] if isinstance(inputs[0].shape[2], int) else int(card.get("input_size", [256])[0])
+    local = card["task"] == "local" if "task" in card else len(inputs) == 1 and isinstance(inputs[0].shape[2], int)
     feeds = []
     for frame in calibration_frames(root, count):
-        if len(inputs) == 1 and isinstance(inputs[0].shape[2], int):  # local: fixed square ROI
-            side = inputs[0].shape[2]
+        if local:
+            side = local_side
             h, w = frame.shape[:2]
             crop = frame[max(0, h // 2 - 150) : h // 2 + 150, max(0, w // 2 - 150) : w // 2 + 150]
             feeds.append({inputs[0].name: to_blob([letterbox(crop, side, side)[0]])})

@@ -305,6 +305,7 @@ class GraphDriver(Node):
         # only once every topic has caught up with the last frame (see wait_until_recorded).
         self._newest_recorded: dict[str, int] = {}
         self.recorder = McapWriter(args.record) if args.record else None
+        self._closed = False
         for topic, msgtype in RECORDED_TOPICS.items():
             self.create_subscription(
                 message_class(msgtype),
@@ -404,7 +405,12 @@ class GraphDriver(Node):
                         self._answered_cv.notify_all()
                 return
             if self.recorder is not None:
-                self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
+                try:
+                    self.recorder.write(self.resolve_topic_name(topic), msgtype, raw, now)
+                except ValueError:
+                    if not self._closed:
+                        raise
+                    return  # a message that raced close(): the run is over, the recording complete
                 with self._answered_cv:
                     self._newest_recorded[topic] = max(stamp, self._newest_recorded.get(topic, stamp))
                     self._answered_cv.notify_all()
@@ -761,5 +767,7 @@ class GraphDriver(Node):
             stop.wait(quiet_s)
 
     def close(self) -> None:
+        """Close the recording; messages still arriving are no longer recorded."""
+        self._closed = True
         if self.recorder is not None:
             self.recorder.close()
