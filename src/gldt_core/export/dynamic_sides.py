@@ -19,15 +19,13 @@ Needs the ``onnx`` package (the ``test``/``train`` extras), not torch; the run t
 
 from __future__ import annotations
 
-import hashlib
 import json
-import os
 from pathlib import Path
 
 import numpy as np
 
 from gldt_core.detect.session import CARD_KEY
-from gldt_core.export.window_rewrite import compare_models
+from gldt_core.export.window_rewrite import compare_models, update_sidecar_card, write_checked_model
 
 #: Largest output difference accepted between the original and the rewritten graph.
 MAX_ABS_DIFF = 1e-6
@@ -68,36 +66,22 @@ def make_sides_dynamic(model: Path | str, out: Path | str) -> float:
         if prop.key == CARD_KEY:
             prop.value = json.dumps(card, sort_keys=True)
     onnx.checker.check_model(proto)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    onnx.save(proto, str(tmp))
-    try:
-        diff = compare_models(model, tmp, [(side, side)])
+
+    def same_outputs_and_anchors(candidate: Path) -> float:
+        diff = compare_models(model, candidate, [(side, side)])
         if diff > MAX_ABS_DIFF:
             raise ValueError(f"{model}: dynamic sides changed its outputs by {diff:.3g}; nothing written")
         smaller = max(multiple, side // 2 // multiple * multiple)
-        anchors = _anchors(tmp, smaller)
+        anchors = _anchors(candidate, smaller)
         expected = sum((smaller // int(stride)) ** 2 for stride in strides)
         if anchors != expected:
             raise ValueError(
                 f"{model}: at {smaller} px it gave {anchors} anchors, expected {expected}; nothing written"
             )
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    os.replace(tmp, out)
-    sidecar = model.with_suffix(".json")
-    written = json.loads(sidecar.read_text()) if sidecar.is_file() else dict(card)
-    written.update(
-        {
-            "dynamic": DYNAMIC_SIDES,
-            "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
-            "size_bytes": out.stat().st_size,
-        }
-    )
-    if out.stem != model.stem:
-        written["name"] = out.stem
-    out.with_suffix(".json").write_text(json.dumps(written, indent=2, sort_keys=True) + "\n")
+        return diff
+
+    diff = write_checked_model(proto, model, out, same_outputs_and_anchors)
+    update_sidecar_card(model, out, {"dynamic": DYNAMIC_SIDES}, card)
     return diff
 
 

@@ -24,6 +24,7 @@ import hashlib
 import json
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -200,33 +201,57 @@ def rewrite_model_file(
     proto = onnx.load(str(model))
     count = rewrite_window_transposes(proto)
     onnx.checker.check_model(proto)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(out.name + ".tmp")
-    onnx.save(proto, str(tmp))
-    try:
-        diff = compare_models(model, tmp, sizes or [(640, 384), (320, 256)])
+
+    def same_outputs(candidate: Path) -> float:
+        diff = compare_models(model, candidate, sizes or [(640, 384), (320, 256)])
         if diff > MAX_ABS_DIFF:
             raise ValueError(
                 f"rewriting {model} changed its outputs by {diff:.3g} (limit {MAX_ABS_DIFF:g}); nothing written"
             )
+        return diff
+
+    diff = write_checked_model(proto, model, out, same_outputs)
+    update_sidecar_card(
+        model,
+        out,
+        {
+            "window_transposes": (
+                f"{count} 6-D window permutes rewritten as 4-D chains (gldt export --rewrite-windows); "
+                f"outputs within {diff:.1e} of the original"
+            )
+        },
+    )
+    return count, diff
+
+
+def write_checked_model(proto: Any, model: Path, out: Path, check: Callable[[Path], float]) -> float:
+    """Save ``proto``, a rewrite of ``model``, to ``out`` only once ``check`` passed on it (saved
+    beside ``out`` under a temporary name; it raises ``ValueError`` to refuse); returns what
+    ``check`` returned (the outputs' largest difference from ``model``)."""
+    import onnx
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    onnx.save(proto, str(tmp))
+    try:
+        result = check(tmp)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
     os.replace(tmp, out)
-    card_path = model.with_suffix(".json")
-    if card_path.is_file():
-        card = json.loads(card_path.read_text())
-        card.update(
-            {
-                "window_transposes": (
-                    f"{count} 6-D window permutes rewritten as 4-D chains (gldt export --rewrite-windows); "
-                    f"outputs within {diff:.1e} of the original"
-                ),
-                "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
-                "size_bytes": out.stat().st_size,
-            }
-        )
-        if out.stem != model.stem:
-            card["name"] = out.stem
-        out.with_suffix(".json").write_text(json.dumps(card, indent=2, sort_keys=True) + "\n")
-    return count, diff
+    return result
+
+
+def update_sidecar_card(model: Path, out: Path, fields: dict[str, Any], card: dict[str, Any] | None = None) -> None:
+    """Write ``out``'s JSON card: ``model``'s (its sidecar, else ``card``; neither: none written)
+    with ``fields``, the new file's SHA-256 and size, and its name where the file has another."""
+    sidecar = model.with_suffix(".json")
+    if sidecar.is_file():
+        card = json.loads(sidecar.read_text())
+    if card is None:
+        return
+    card = dict(card, **fields)
+    card.update({"sha256": hashlib.sha256(out.read_bytes()).hexdigest(), "size_bytes": out.stat().st_size})
+    if out.stem != model.stem:
+        card["name"] = out.stem
+    out.with_suffix(".json").write_text(json.dumps(card, indent=2, sort_keys=True) + "\n")
