@@ -31,6 +31,13 @@ def header_stamp_ns(cdr: bytes) -> int:
 
 def header_frame_id(cdr: bytes) -> str:
     """``header.frame_id`` of a CDR message whose first field is a ``std_msgs/Header``."""
+    _, start, length = _frame_id_span(cdr)
+    return cdr[start : start + length - 1].decode("utf-8", errors="replace")
+
+
+def _frame_id_span(cdr: bytes) -> tuple[str, int, int]:
+    """``(byte order, offset of header.frame_id's characters, their count with the terminating
+    NUL)`` of such a message; ValueError when it ends before them."""
     order = _stamp_format(cdr)[0]
     start = ENCAPSULATION_SIZE + 8
     if len(cdr) < start + 4:
@@ -38,7 +45,7 @@ def header_frame_id(cdr: bytes) -> str:
     (length,) = struct.unpack_from(order + "I", cdr, start)
     if length == 0 or len(cdr) < start + 4 + length:
         raise ValueError(f"CDR message of {len(cdr)} bytes ends inside its header's frame_id")
-    return cdr[start + 4 : start + 3 + length].decode("utf-8", errors="replace")
+    return order, start + 4, length
 
 
 def with_header_stamp(cdr: bytes, stamp_ns: int) -> bytes:
@@ -55,9 +62,8 @@ def after_header_fields(cdr: bytes, fmt: str) -> tuple[int | float, ...]:
     ``fmt`` without byte order (e.g. ``"QB"``: a ``uint64`` then a ``uint8``, as ``TrackArray``'s
     ``frame_index`` and ``source``), each aligned as CDR aligns it (to its own size, counted from
     the end of the encapsulation header); ValueError when the message is too short."""
-    order = _stamp_format(cdr)[0]
-    (length,) = struct.unpack_from(order + "I", cdr, ENCAPSULATION_SIZE + 8)
-    offset = 8 + 4 + length  # stamp, frame_id's length and bytes (its terminating NUL included)
+    order, start, length = _frame_id_span(cdr)
+    offset = start + length - ENCAPSULATION_SIZE  # past the header: stamp, frame_id's length and characters
     values = []
     for code in fmt:
         size = struct.calcsize(code)

@@ -80,15 +80,22 @@ def paired_overhead(offline_s: list[float], lockstep_s: list[float]) -> tuple[fl
 
 
 def graph_run(bag: Path, extra: list[str]) -> str:
+    """The summary line of ``pipeline --bag BAG *extra``."""
+    return pipeline_replay(bag, extra, "bench_graph")[0]
+
+
+def pipeline_replay(bag: Path, extra: list[str], bench: str) -> tuple[str, int]:
+    """Run the user's command ``pipeline --bag BAG *extra``; ``(its summary line, its exit status)``.
+    A run that failed (no summary, or an exit status but 0 and 3) stops ``bench`` with its output."""
     pipeline = shutil.which("pipeline")
     if pipeline is None:
-        raise SystemExit("bench_graph: `pipeline` not on PATH; run through scripts/with_ros_env.sh")
+        raise SystemExit(f"{bench}: `pipeline` not on PATH; run through scripts/with_ros_env.sh")
     completed = subprocess.run([pipeline, "--bag", str(bag), *extra], capture_output=True, text=True, timeout=1800)
     summary = [line for line in completed.stdout.splitlines() if line.startswith("pipeline: sent ")]
     # 3: frames lost or unanswered (a paced replay that outran the core); the summary counts them.
     if completed.returncode not in (0, 3) or not summary:
-        raise SystemExit(f"bench_graph: pipeline failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
-    return summary[-1]
+        raise SystemExit(f"{bench}: pipeline failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
+    return summary[-1], completed.returncode
 
 
 def replay_seconds(summary: str) -> float:

@@ -38,6 +38,7 @@ from gldt_core.io.cdr import header_stamp_ns
 from gldt_core.io.mcap_file import read_mcap
 from gldt_core.io.recording import TRACKS_TOPIC_SUFFIX, track_array_frame_and_source
 from gldt_core.paths import REPO_ROOT
+from gldt_ros.bench.graph import pipeline_replay
 
 SAMPLE_BAGS = (REPO_ROOT / "bags" / "halmstad_v_drone_001", REPO_ROOT / "bags" / "synth_1080p_multi_uav")
 #: ``TrackArray.SOURCE_PREDICTED`` and ``SOURCE_UNREADABLE``: answers no detector measured (read
@@ -104,23 +105,17 @@ def judge_recording(record: Path) -> tuple[int, int, np.ndarray]:
 
 def live_run(bag: Path, rate: float, workdir: Path, extra: list[str]) -> LiveRun:
     """Run the user's command on ``bag`` and judge its recording."""
-    pipeline = shutil.which("pipeline")
-    if pipeline is None:
-        raise SystemExit("bench live: `pipeline` not on PATH; run through scripts/with_ros_env.sh")
     record = workdir / f"{bag.name}.mcap"
     record.unlink(missing_ok=True)
-    command = [pipeline, "--bag", str(bag), "--rate", f"{rate:g}", "--record", str(record), *extra]
-    completed = subprocess.run(command, capture_output=True, text=True, timeout=1800)
-    summary = [line for line in completed.stdout.splitlines() if line.startswith("pipeline: sent ")]
-    print(f"  {' '.join(command[1:])}: exit {completed.returncode}; {summary[-1] if summary else 'no summary'}")
-    if completed.returncode not in (0, 3) or not record.exists():
-        raise SystemExit(f"bench live: pipeline failed:\n{completed.stdout[-2000:]}{completed.stderr[-2000:]}")
+    arguments = ["--rate", f"{rate:g}", "--record", str(record), *extra]
+    summary, status = pipeline_replay(bag, arguments, "bench live")
+    print(f"  --bag {bag} {' '.join(arguments)}: exit {status}; {summary}")
+    if not record.exists():
+        raise SystemExit(f"bench live: pipeline wrote no recording {record}")
     frames, period = bag_frames(bag)
     answered, predicted, latencies = judge_recording(record)
     p50, p99, worst = np.percentile(latencies, [50, 99, 100]) if len(latencies) else (np.nan,) * 3
-    return LiveRun(
-        bag.name, frames, period, answered, predicted, float(p50), float(p99), float(worst), completed.returncode
-    )
+    return LiveRun(bag.name, frames, period, answered, predicted, float(p50), float(p99), float(worst), status)
 
 
 def clip_bag(clip: str, workdir: Path) -> Path:

@@ -35,7 +35,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, NODES, PROCESS_LAYOUTS
+from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, NODES, PROCESS_LAYOUTS, group_label
 from gldt_ros.runtime.shm_cleanup import segments_held_by
 
 #: The issue's goal: tracks again within this many seconds of the restart.
@@ -123,7 +123,7 @@ def restart_timings(run: KilledRun, record: Path) -> dict[str, float]:
     """The phases of one restart, in seconds (see the module docstring); raises ``ValueError``
     naming what is missing when the run did not restart and relink as it should."""
     restarted = run.times_of(f"{run.victim} exited")
-    # A group's process is ready when its last node is (``victim`` names a group "a+b+c").
+    # A group's process is ready when its last node is (``victim`` is a group_label: "a+b+c").
     ready = [max(times) for times in zip(*(run.times_of(f"{name} ready") for name in run.victim.split("+")))]
     relinked = run.times_of("graph linked again")
     if len(restarted) != 1 or len(ready) != 2 or len(relinked) != 1:
@@ -170,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
     # The spare from start-up on (not after the default --spare-delay): restarts from it are measured.
     command = [sys.executable, "-m", "gldt_ros.launcher.pipeline", "--spare-delay", "0", "--processes", args.processes]
-    victims = ["+".join(group) for group in PROCESS_LAYOUTS[args.processes] if set(group) & set(args.nodes)]
+    victims = [group_label(group) for group in PROCESS_LAYOUTS[args.processes] if set(group) & set(args.nodes)]
     results: dict[str, dict[str, float]] = {}
     with tempfile.TemporaryDirectory() as scratch:
         for victim in victims:

@@ -46,6 +46,13 @@ PROCESS_LAYOUTS: dict[str, tuple[tuple[str, ...], ...]] = {
 #: The layout ``pipeline`` starts when not told otherwise.
 DEFAULT_PROCESS_LAYOUT = GROUPED
 
+
+def group_label(group: tuple[str, ...] | list[str]) -> str:
+    """How ``pipeline`` names the process of a group of nodes in what it prints ("a+b+c"; a lone
+    node by its own name), and how ``python -m gldt_ros.bench.restart`` finds it there."""
+    return "+".join(group)
+
+
 #: ``header.frame_id`` of the warm-up frame ``pipeline --bag`` sends before the replay: a copy of
 #: the bag's first image that runs through every node (first inference, every link's first
 #: message) and leaves no state behind. Each node that keeps state across frames starts afresh

@@ -54,7 +54,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, NODES, PROCESS_LAYOUTS, default_params_file
+from gldt_ros.interface.graph import DEFAULT_PROCESS_LAYOUT, NODES, PROCESS_LAYOUTS, default_params_file, group_label
 from gldt_ros.launcher.heartbeat import Heartbeats
 from gldt_ros.runtime.dds_profile import profile_for_children, use_frames_profile_if_shipped, use_graph_dds_profile
 from gldt_ros.runtime.executor import EXECUTOR_CHOICES, EXECUTOR_ENV, background_executor, executor_kind
@@ -455,7 +455,7 @@ class NodeProcesses:
     def _start(self, name: str) -> None:
         """Start the process of ``name``'s group, from the warm spare where one waits."""
         group = self.group_of(name)
-        label = "+".join(group)
+        label = group_label(group)
         spare, self.spare = self.spare, None
         if spare is not None and spare.poll() is None and spare.stdin is not None:
             try:
@@ -534,11 +534,11 @@ class NodeProcesses:
             if not self.supervising:
                 return []
             hung = self._kill_silent()
-            dying: list[tuple[str, ...]] = []  # the groups whose process ended, each once
-            for name, process in self.processes.items():
-                group = self.group_of(name)
-                if process.poll() is not None and self.restarts[name] < self.args.max_restarts and group not in dying:
-                    dying.append(group)
+            dying = [  # the groups whose process ended
+                group
+                for group in self.groups
+                if self.processes[group[0]].poll() is not None and self.restarts[group[0]] < self.args.max_restarts
+            ]
         if any(name in hung for group in dying for name in group):
             time.sleep(HUNG_RESTART_PAUSE_S)
         for name in [name for group in dying for name in group]:
@@ -558,7 +558,8 @@ class NodeProcesses:
                 attempt = f"{self.restarts[group[0]]}/{self.args.max_restarts}"
                 if group[0] not in hung:  # a hung node was announced when killed
                     print(
-                        f"pipeline: node {'+'.join(group)} exited with code {code}; restarting ({attempt})", flush=True
+                        f"pipeline: node {group_label(group)} exited with code {code}; restarting ({attempt})",
+                        flush=True,
                     )
                 self._start(group[0])
                 self._spare_due = time.monotonic() + self.args.spare_delay
@@ -610,16 +611,15 @@ class NodeProcesses:
             spare, self.spare = self.spare, None
         if spare is not None:
             self._discard_spare(spare)
-        by_process: dict[int, tuple[str, subprocess.Popen[bytes]]] = {}  # a group's process once, named by its nodes
-        for name, process in self.processes.items():
-            label = by_process[id(process)][0] + "+" + name if id(process) in by_process else name
-            by_process[id(process)] = (label, process)
-        for _, process in by_process.values():
+        started = [
+            (group_label(group), self.processes[group[0]]) for group in self.groups if group[0] in self.processes
+        ]
+        for _, process in started:
             if process.poll() is None:
                 process.send_signal(signal.SIGINT)
         deadline = time.monotonic() + grace_s
         unclean = 0
-        for name, process in by_process.values():
+        for name, process in started:
             try:
                 code = process.wait(timeout=max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
