@@ -15,8 +15,10 @@ from gldt_ros.runtime.dds_profile import (  # noqa: E402
     DDS_PROFILE_VARIABLE,
     profile_for_children,
     shipped_frames_profile,
+    shipped_group_profile,
     shipped_profile,
     use_frames_profile_if_shipped,
+    use_group_profile_if_shipped,
 )
 from support import isolated_ros_env  # noqa: E402
 
@@ -49,6 +51,41 @@ def test_frames_profile_differs_from_the_shipped_one_only_in_the_segment() -> No
     assert _shm_setting(shipped_profile(), "segment_size") is None, (
         "the small-message nodes keep Fast DDS's 512 KiB segment"
     )
+
+
+IGNORE_LOCAL = "fastdds.ignore_local_endpoints"
+PROPERTY_TAGS = {f"{NAMESPACE}{tag}" for tag in ("propertiesPolicy", "properties", "property", "name", "value")}
+
+
+def _properties(path: Path) -> dict[str, str]:
+    return {
+        (element.findtext(f"{NAMESPACE}name") or "").strip(): (element.findtext(f"{NAMESPACE}value") or "").strip()
+        for element in ElementTree.parse(path).getroot().iter(f"{NAMESPACE}property")
+    }
+
+
+def test_group_profile_is_the_frames_profile_that_ignores_its_own_endpoints() -> None:
+    """A group's process holds frame_pair_buffer (large segment) and passes messages between its
+    nodes in-process (gldt_ros.runtime.local_delivery), so DDS must not also match them."""
+    assert _properties(shipped_group_profile()) == {IGNORE_LOCAL: "true"}
+    assert _properties(shipped_frames_profile()) == {} and _properties(shipped_profile()) == {}
+    assert _tree_without(shipped_group_profile(), PROPERTY_TAGS) == _tree_without(
+        shipped_frames_profile(), PROPERTY_TAGS
+    )
+
+
+def test_only_a_shipped_profile_is_swapped_for_the_group_profile(monkeypatch) -> None:
+    for shipped in (shipped_profile(), shipped_frames_profile()):
+        monkeypatch.setenv(DDS_PROFILE_VARIABLE, str(shipped))
+        assert use_group_profile_if_shipped() is True
+        assert os.environ[DDS_PROFILE_VARIABLE] == str(shipped_group_profile())
+    monkeypatch.setenv(DDS_PROFILE_VARIABLE, "/etc/my_profile.xml")
+    assert use_group_profile_if_shipped() is False, "a profile the user exported wins, DDS links the group"
+    assert os.environ[DDS_PROFILE_VARIABLE] == "/etc/my_profile.xml"
+    monkeypatch.delenv(DDS_PROFILE_VARIABLE)
+    assert use_group_profile_if_shipped() is False and DDS_PROFILE_VARIABLE not in os.environ
+    group = {DDS_PROFILE_VARIABLE: str(shipped_group_profile())}
+    assert profile_for_children(group) == {DDS_PROFILE_VARIABLE: str(shipped_profile())}
 
 
 def test_frames_profile_carries_the_largest_frame_pair_in_one_message() -> None:

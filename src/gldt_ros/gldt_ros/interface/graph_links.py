@@ -50,15 +50,30 @@ class EndpointOwners(Protocol):
     def get_subscriptions_info_by_topic(self, topic_name: str, /) -> Sequence[Any]: ...
 
 
-def own_link_counts(node: Node) -> dict[str, int]:
-    """For each of ``node``'s data topics, how many peers DDS has matched with it so far."""
+class LocalPeers(Protocol):
+    """The endpoints of the node's own process that DDS does not match with it, because that
+    process's messages between its nodes do not go through DDS
+    (:class:`gldt_ros.runtime.local_delivery.LocalDelivery`)."""
+
+    def subscriber_count(self, topic: str, /) -> int: ...
+
+    def publisher_count(self, topic: str, /) -> int: ...
+
+
+def own_link_counts(node: Node, local: LocalPeers | None = None) -> dict[str, int]:
+    """For each of ``node``'s data topics, how many peers it is linked with so far: matched by DDS,
+    plus, with ``local``, the endpoints of its own process that DDS leaves to ``local``."""
     counts: dict[str, int] = {}
     for publisher in node.publishers:
-        if publisher.topic_name not in _INFRASTRUCTURE_TOPICS:
-            counts[MATCHED_SUBSCRIPTIONS + publisher.topic_name] = publisher.get_subscription_count()
+        topic = publisher.topic_name
+        if topic not in _INFRASTRUCTURE_TOPICS:
+            own = local.subscriber_count(topic) if local is not None else 0
+            counts[MATCHED_SUBSCRIPTIONS + topic] = publisher.get_subscription_count() + own
     for subscription in node.subscriptions:
-        if subscription.topic_name not in _INFRASTRUCTURE_TOPICS:
-            counts[MATCHED_PUBLISHERS + subscription.topic_name] = subscription.get_publisher_count()
+        topic = subscription.topic_name
+        if topic not in _INFRASTRUCTURE_TOPICS:
+            own = local.publisher_count(topic) if local is not None else 0
+            counts[MATCHED_PUBLISHERS + topic] = subscription.get_publisher_count() + own
     return counts
 
 

@@ -306,7 +306,10 @@ class GraphDriver(Node):
         self._newest_recorded: dict[str, int] = {}
         self.recorder = McapWriter(args.record) if args.record else None
         self._closed = False
-        for topic, msgtype in RECORDED_TOPICS.items():
+        # The tracks answer the frames; the other topics are only listened to for a recording, so
+        # that without one their writers in the graph have no reader here to serialise them for.
+        listened = RECORDED_TOPICS if self.recorder is not None else {topics.TRACKS: RECORDED_TOPICS[topics.TRACKS]}
+        for topic, msgtype in listened.items():
             self.create_subscription(
                 message_class(msgtype),
                 topic,
@@ -664,7 +667,7 @@ class GraphDriver(Node):
         predicted = f" ({predicted}: answered by prediction)" if predicted else ""
         answered = frames - unanswered
         return (
-            f"pipeline: sent {frames} frames in {elapsed:.1f} s{rate}; answered {answered}{predicted}, "
+            f"pipeline: sent {frames} frames in {elapsed:.2f} s{rate}; answered {answered}{predicted}, "
             f"{unanswered} frames without an answer; {self.tracks_received} track messages{latency}"
             + (f"; {self.unmatched_answers} answers to frames not awaited ignored" if self.unmatched_answers else "")
             + (f"; {unreadable} unreadable bag messages skipped ({unreadable_frames} frames)" if unreadable else "")

@@ -5,7 +5,10 @@ points Fast DDS at, through :data:`DDS_PROFILE_VARIABLE`, unless the user export
 their own. The processes that publish frames (frame_pair_buffer, and the ``pipeline`` process
 itself, which plays the camera) switch to its twin ``config/fastdds_profile_frames.xml``, whose
 larger shared-memory segment carries a frame pair in one piece instead of 512 KiB fragments; the
-segment is allocated whole, so the other nodes keep the small one.
+segment is allocated whole, so the other nodes keep the small one. A process that hosts several
+nodes (:mod:`gldt_ros.runtime.node_group`) switches to ``config/fastdds_profile_group.xml``, the
+frames twin whose participant does not match its own endpoints: its nodes pass messages to each
+other in-process (:mod:`gldt_ros.runtime.local_delivery`).
 
 A restarted node keeps Fast DDS's choice of participant id, which after a crash is the dead
 process's, so it opens the dead process's shared-memory ports (the profile's 100 ms health check
@@ -36,6 +39,23 @@ def shipped_frames_profile() -> Path:
     return shipped_config("fastdds_profile_frames.xml")
 
 
+def shipped_group_profile() -> Path:
+    """``share/gldt_ros/config/fastdds_profile_group.xml``: the frames twin whose participant
+    ignores its own endpoints, for a process whose nodes pass messages in-process."""
+    return shipped_config("fastdds_profile_group.xml")
+
+
+def use_group_profile_if_shipped() -> bool:
+    """In a process that hosts several nodes, swap the shipped profile (or its frames twin) for
+    the group profile; a profile the user exported, or none, is left alone. Returns whether the
+    group profile is in use, i.e. whether DDS leaves the process's own links to it. Must run
+    before ``rclpy.init``."""
+    current = os.environ.get(DDS_PROFILE_VARIABLE, "")
+    if current and Path(current) in (shipped_profile(), shipped_frames_profile()):
+        current = os.environ[DDS_PROFILE_VARIABLE] = str(shipped_group_profile())
+    return bool(current) and Path(current) == shipped_group_profile()
+
+
 def use_frames_profile_if_shipped() -> str:
     """In a process that publishes frames, swap the shipped profile for its large-segment twin;
     a profile the user exported, or none at all (a node started by hand), is left alone.
@@ -47,11 +67,11 @@ def use_frames_profile_if_shipped() -> str:
 
 
 def profile_for_children(environment: dict[str, str]) -> dict[str, str]:
-    """``environment`` with the frames twin swapped back for the shipped profile: a process that
-    switched to it (:func:`use_frames_profile_if_shipped`) passes the small-segment profile on to
+    """``environment`` with the frames or group twin swapped back for the shipped profile: a process
+    that switched to one (:func:`use_frames_profile_if_shipped`) passes the small-segment profile on to
     the nodes it starts, which switch again only if they publish frames themselves."""
     current = environment.get(DDS_PROFILE_VARIABLE, "")
-    if current and Path(current) == shipped_frames_profile():
+    if current and Path(current) in (shipped_frames_profile(), shipped_group_profile()):
         environment = dict(environment, **{DDS_PROFILE_VARIABLE: str(shipped_profile())})
     return environment
 

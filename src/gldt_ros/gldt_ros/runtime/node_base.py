@@ -47,9 +47,16 @@ from gldt_ros.interface import qos, topics
 from gldt_ros.interface.graph_links import link_key_values, own_link_counts, parse_link_counts
 from gldt_ros.interface.params import SCHEMA, ParamSpec
 from gldt_ros.launcher.heartbeat import PERIOD_KEY, PID_KEY
-from gldt_ros.runtime.dds_profile import use_frames_profile_if_shipped
+from gldt_ros.runtime.dds_profile import use_frames_profile_if_shipped, use_group_profile_if_shipped
 from gldt_ros.runtime.executor import EVENTS, executor_kind, quiet_sigint_for_events_executor, spin_nodes
 from gldt_ros.runtime.heap_trim import start_heap_trimming, trim_period_from_env
+from gldt_ros.runtime.local_delivery import (
+    LocalPublisher,
+    active_local_delivery,
+    install_local_delivery,
+    local_delivery_wanted,
+    uninstall_local_delivery,
+)
 from gldt_ros.runtime.log_throttle import LogThrottle
 from gldt_ros.runtime.stack_dump import dump_stacks_on_request
 from gldt_ros.runtime.teardown_limit import limit_teardown
@@ -71,6 +78,8 @@ class GldtNode(Node):
     """Base class: declares the node's parameters from :data:`SCHEMA` and reports diagnostics."""
 
     def __init__(self, name: str, **kwargs: Any) -> None:
+        # Set before Node.__init__, which already creates publishers (rosout, parameter events).
+        self._local = active_local_delivery()
         super().__init__(name, **kwargs)
         self._specs = {spec.name: spec for spec in SCHEMA[name]}
         for spec in SCHEMA[name]:
@@ -121,6 +130,32 @@ class GldtNode(Node):
 
         return wrapper
 
+    def create_publisher(self, msg_type: Any, topic: str, qos_profile: Any, **kwargs: Any) -> Any:
+        """``Node.create_publisher``; in a process with local delivery
+        (:mod:`gldt_ros.runtime.local_delivery`) a :class:`LocalPublisher` around it, which also
+        hands each message to this process's subscriptions of the topic."""
+        publisher = super().create_publisher(msg_type, topic, qos_profile, **kwargs)
+        if self._local is None:
+            return publisher
+        self._local.add_publisher(publisher.topic_name, publisher, owner=self)
+        return LocalPublisher(publisher, self._local)
+
+    def create_subscription(self, msg_type: Any, topic: str, callback: Any, qos_profile: Any, **kwargs: Any) -> Any:
+        """``Node.create_subscription``; in a process with local delivery the callback also gets
+        what this process's own nodes publish on the topic (DDS no longer matches them)."""
+        if self._local is None:
+            return super().create_subscription(msg_type, topic, callback, qos_profile, **kwargs)
+        subscription = super().create_subscription(
+            msg_type, topic, self._local.dispatching(callback), qos_profile, **kwargs
+        )
+        self._local.add_subscriber(subscription.topic_name, msg_type, callback, owner=self)
+        return subscription
+
+    def destroy_node(self) -> None:
+        if self._local is not None:
+            self._local.forget(self)
+        super().destroy_node()
+
     def create_timer(
         self,
         timer_period_sec: float,
@@ -142,7 +177,7 @@ class GldtNode(Node):
 
         return super().create_timer(
             timer_period_sec,
-            stop_tolerant,
+            stop_tolerant if self._local is None else self._local.dispatching(stop_tolerant),
             callback_group=callback_group,
             clock=clock if clock is not None else Clock(clock_type=ClockType.STEADY_TIME),
             autostart=autostart,
@@ -193,14 +228,14 @@ class GldtNode(Node):
             self.get_logger().warning(text)
 
     def _publish_if_links_changed(self) -> None:
-        if self._status_changed or own_link_counts(self) != self._reported_links:
+        if self._status_changed or own_link_counts(self, self._local) != self._reported_links:
             self._publish_diagnostics(regular=False)
 
     def diagnostics_status(self) -> DiagnosticStatus:
         """This node's status as it would be published now (:meth:`_publish_diagnostics`): OK, or
         WARN with a message naming each reason (inputs ever dropped, skipped pairs or stale drops
         since the last regular status, raised :meth:`set_warning` conditions)."""
-        links = own_link_counts(self)
+        links = own_link_counts(self, self._local)
         rate = 0.0
         if len(self._arrivals) >= 2 and self._arrivals[-1] > self._arrivals[0]:
             rate = (len(self._arrivals) - 1) / (self._arrivals[-1] - self._arrivals[0])
@@ -278,7 +313,9 @@ def run_nodes(
 ) -> int:
     """:func:`run_node` for a process hosting several nodes on one executor
     (:mod:`gldt_ros.runtime.node_group`): they start in order, and one that cannot start stops
-    the process with exit 1, as a lone node's would."""
+    the process with exit 1, as a lone node's would. Several nodes pass their messages to each
+    other in-process (:mod:`gldt_ros.runtime.local_delivery`) where the group's DDS profile can be
+    used (the shipped profiles are in use) and ``$GLDT_LOCAL_DELIVERY`` is not ``0``."""
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
@@ -288,7 +325,10 @@ def run_nodes(
     except ValueError as error:
         print(f"[gldt] cannot start: {error}", flush=True)
         return 1
-    if publishes_frames:
+    uninstall_local_delivery()
+    if len(node_factories) > 1 and local_delivery_wanted() and use_group_profile_if_shipped():
+        install_local_delivery()
+    elif publishes_frames:
         use_frames_profile_if_shipped()
     if executor == EVENTS:
         quiet_sigint_for_events_executor()
