@@ -139,3 +139,63 @@ def test_without_a_budget_the_learning_rate_follows_warmup_and_cosine_of_the_ste
         )
 
     assert rates == pytest.approx([expected(2), expected(4)])
+
+
+def test_a_detector_run_stopped_and_resumed_ends_with_the_same_weights(tmp_path: Path, data_cache: Path) -> None:
+    """Three epochs straight and three epochs as 1 + 2 sessions (--stop-after-s 0, then --resume
+    last.pt) give identical weights: the data order, augmentation, schedule, optimiser and EMA
+    all carry over; the time spent adds up by device."""
+    config = tiny_config("local", data_cache)
+    config["train"].update(epochs=3, ema_decay=0.9)
+    straight, _ = load_checkpoint(
+        train("local", config, out_dir=tmp_path / "straight", progress=False).with_name("last.pt")
+    )
+
+    train("local", config, out_dir=tmp_path / "split", progress=False, stop_after_s=0.0)
+    first = torch.load(tmp_path / "split" / "last.pt", map_location="cpu", weights_only=False)
+    assert first["epoch"] == 1 and first["resume"]["step"] == 2
+    train("local", config, out_dir=tmp_path / "split", progress=False, resume=tmp_path / "split" / "last.pt")
+    resumed, checkpoint = load_checkpoint(tmp_path / "split" / "last.pt")
+
+    assert checkpoint["epoch"] == 3 and checkpoint["resume"]["step"] == 6
+    for (name, a), b in zip(straight.state_dict().items(), resumed.state_dict().values()):
+        assert torch.equal(a, b), f"{name} differs after a resume"
+    assert checkpoint["train_wall_s_by_device"]["cpu"] >= first["train_wall_s_by_device"]["cpu"]
+    assert len(checkpoint["resume"]["rows"]) == 3
+
+
+def test_a_resume_against_another_network_or_schedule_is_refused_in_one_line(tmp_path: Path, data_cache: Path) -> None:
+    from gldt_core.training.resume import ResumeError
+
+    config = tiny_config("local", data_cache)
+    train("local", config, out_dir=tmp_path / "run", progress=False)
+    last, best = tmp_path / "run" / "last.pt", tmp_path / "run" / "best.pt"
+    longer = tiny_config("local", data_cache)
+    longer["train"]["epochs"] = 4
+    wider = tiny_config("local", data_cache)
+    wider["model"]["channels"] = [8, 8, 8, 16, 16]
+    (tmp_path / "broken.pt").write_bytes(b"not a checkpoint")
+    cases = [
+        ("global", tiny_config("global", data_cache), last, "is a local checkpoint, this run trains global"),
+        ("local", longer, last, "was scheduled for 2 steps, the config gives 8"),
+        ("local", wider, last, "has the network"),
+        ("local", config, best, "holds no training state"),
+        ("local", config, tmp_path / "missing.pt", "checkpoint not found"),
+        ("local", config, tmp_path / "broken.pt", "is not a readable checkpoint"),
+    ]
+    for task, cfg, path, message in cases:
+        with pytest.raises(ResumeError, match=message) as caught:
+            train(task, cfg, out_dir=tmp_path / "again", progress=False, resume=path)
+        assert "\n" not in str(caught.value)
+    assert not (tmp_path / "again").exists(), "a refused resume wrote into the run folder"
+
+
+def test_a_run_started_from_another_runs_weights_keeps_their_training_time(tmp_path: Path, data_cache: Path) -> None:
+    config = tiny_config("local", data_cache)
+    first = train("local", config, out_dir=tmp_path / "first", progress=False)
+    spent_first = torch.load(first, map_location="cpu", weights_only=False)["train_wall_s_by_device"]["cpu"]
+    train("local", config, out_dir=tmp_path / "second", progress=False, init_from=first)
+    _, checkpoint = load_checkpoint(tmp_path / "second" / "last.pt")
+    assert checkpoint["train_wall_s_by_device"]["cpu"] > spent_first
+    assert checkpoint["data"]["initial_weights"] == str(first)
+    assert checkpoint["resume"]["step"] == 2, "--init-from starts the config's schedule from its first step"

@@ -196,6 +196,7 @@ def _run(args: argparse.Namespace) -> int:
         "validation_during_training": ckpt.get("metrics"),
         "training_data": ckpt.get("data"),
         "training_wall_s": ckpt.get("train_wall_s"),
+        "training_wall_s_by_device": ckpt.get("train_wall_s_by_device"),
         "training_config": ckpt.get("config"),
         "note": args.note,
     }

@@ -16,7 +16,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--resume",
         default=None,
-        help="second stage: continue from this last.pt (model, optimiser, schedule, data order, time spent)",
+        help="continue the run whose last.pt this is (weights, optimiser, schedule, data order, time spent)",
+    )
+    parser.add_argument(
+        "--init-from",
+        default=None,
+        help="detectors: start this config's schedule from the weights of another run's best.pt or last.pt",
+    )
+    parser.add_argument(
+        "--stop-after-s",
+        type=float,
+        default=None,
+        help="detectors: end this session after the first epoch that finishes past this many seconds "
+        "(then --resume its last.pt); unlike --max-wall-s it does not shorten the schedule",
     )
     parser.add_argument("--config", required=True, help="training YAML (see src/gldt_core/configs/)")
     parser.add_argument("--out", default=None, help="run directory (default: out_dir from the config)")
@@ -54,8 +66,6 @@ def _with_common_overrides(config: dict, args: argparse.Namespace) -> dict:
 def _run(args: argparse.Namespace) -> int:
     if args.task == "second-stage":
         return _run_second_stage(args)
-    if args.resume is not None:
-        raise ValueError("--resume is for the second stage; the detectors restart from their config")
     try:
         from gldt_core.training.train import load_config, train
     except ImportError as error:  # torch is an optional extra
@@ -68,7 +78,15 @@ def _run(args: argparse.Namespace) -> int:
         config["train"]["device"] = args.device
     if args.workers is not None:
         config["data"]["load_workers"] = config["train"]["loader_workers"] = args.workers
-    best = train(args.task, config, out_dir=args.out, progress=not args.no_progress)
+    best = train(
+        args.task,
+        config,
+        out_dir=args.out,
+        progress=not args.no_progress,
+        resume=args.resume,
+        init_from=args.init_from,
+        stop_after_s=args.stop_after_s,
+    )
     print(f"best checkpoint: {best}")
     return 0
 
@@ -80,7 +98,7 @@ def _run_second_stage(args: argparse.Namespace) -> int:
         raise ValueError(f"training needs torch (pip install torch==2.13.0 onnx): {error}") from error
 
     config = _with_common_overrides(load_config(args.config), args)
-    for name in ("steps_per_epoch", "device", "workers"):
+    for name in ("steps_per_epoch", "device", "workers", "init_from", "stop_after_s"):
         if getattr(args, name.replace("-", "_")) is not None:
             raise ValueError(f"--{name.replace('_', '-')} applies to the detectors, not the second stage")
     result = train_second_stage(config, out_dir=args.out, resume=args.resume, progress=not args.no_progress)

@@ -37,6 +37,7 @@ from gldt_core.detect.second_stage import (
 )
 from gldt_core.eval.halmstad_split import clip_category, halmstad_split
 from gldt_core.training.crops import SOURCES, CropSet, CropSpec, build_crops
+from gldt_core.training.resume import ResumeError, read_checkpoint
 
 DEFAULTS: dict[str, Any] = {
     "seed": 0,
@@ -64,10 +65,6 @@ DEFAULTS: dict[str, Any] = {
 
 #: Fewest optimiser steps the one-cycle schedule is defined for.
 MIN_STEPS = 10
-
-
-class ResumeError(ValueError):
-    """A checkpoint that cannot be resumed from (missing, unreadable, or for another config)."""
 
 
 def conv(cin: int, cout: int, stride: int) -> nn.Sequential:
@@ -146,16 +143,8 @@ def model_signature(config: dict[str, Any]) -> dict[str, Any]:
 
 def load_resume(path: Path, config: dict[str, Any]) -> dict[str, Any]:
     """The checkpoint at ``path``, checked against ``config``; :class:`ResumeError` with one line otherwise."""
-    path = Path(path)
-    if not path.is_file():
-        raise ResumeError(f"cannot resume: checkpoint not found: {path}")
-    try:
-        checkpoint = torch.load(path, map_location="cpu", weights_only=False)
-    except Exception as error:  # a truncated or foreign file: torch raises several kinds
-        raise ResumeError(
-            f"cannot resume: {path} is not a readable checkpoint ({type(error).__name__}: {error})"
-        ) from None
-    if not isinstance(checkpoint, dict) or checkpoint.get("kind") != "second_stage":
+    checkpoint = read_checkpoint(path)
+    if checkpoint.get("kind") != "second_stage":
         raise ResumeError(f"cannot resume: {path} is not a second-stage checkpoint")
     if checkpoint.get("signature") != model_signature(config):
         raise ResumeError(

@@ -39,6 +39,7 @@ from gldt_core.training.data import (
 from gldt_core.training.loss import DetectionLoss
 from gldt_core.training.models import Detector, ModelSpec
 from gldt_core.training.paste import ObjectBank
+from gldt_core.training.resume import ResumeError, add_seconds, read_checkpoint
 
 TASKS = ("global", "local")
 
@@ -415,15 +416,72 @@ def load_checkpoint(path: Path | str) -> tuple[Detector, dict[str, Any]]:
     return model.eval(), ckpt
 
 
-def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progress: bool = True) -> Path:
-    """Train one detector; returns the path of ``best.pt``."""
+def _resume_state(path: Path, task: str, spec: ModelSpec, total_steps: int) -> dict[str, Any]:
+    """The state a ``last.pt`` carries to continue a run, checked against this run's task, network
+    and schedule; :class:`ResumeError` with one line otherwise."""
+    checkpoint = read_checkpoint(path)
+    state = checkpoint.get("resume")
+    if not isinstance(state, dict):
+        raise ResumeError(f"cannot resume: {path} holds no training state (only last.pt does; best.pt: --init-from)")
+    if checkpoint.get("task") != task:
+        raise ResumeError(f"cannot resume: {path} is a {checkpoint.get('task')} checkpoint, this run trains {task}")
+    if checkpoint.get("spec") != spec.to_dict():
+        raise ResumeError(
+            f"cannot resume: {path} has the network {checkpoint.get('spec')}, the config asks for {spec.to_dict()}"
+        )
+    if state.get("total_steps") != total_steps:
+        raise ResumeError(
+            f"cannot resume: {path} was scheduled for {state.get('total_steps')} steps, "
+            f"the config gives {total_steps} (train.epochs x train.steps_per_epoch)"
+        )
+    return state
+
+
+def _initial_weights(path: Path, task: str, spec: ModelSpec) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
+    """The (EMA) weights of a finished or stopped run to start a new schedule from, and the training
+    seconds by device that went into them."""
+    checkpoint = read_checkpoint(path)
+    if checkpoint.get("task") != task or checkpoint.get("spec") != spec.to_dict():
+        raise ResumeError(
+            f"cannot start from {path}: it is a {checkpoint.get('task')} network {checkpoint.get('spec')}, "
+            f"this run trains {task} with {spec.to_dict()}"
+        )
+    spent = checkpoint.get("train_wall_s_by_device")
+    if spent is None:  # checkpoints written before the time was kept by device
+        device = str(checkpoint.get("config", {}).get("train", {}).get("device", "unknown"))
+        spent = {device: float(checkpoint.get("train_wall_s") or 0.0)}
+    return checkpoint["state_dict"], dict(spent)
+
+
+def train(
+    task: str,
+    config: dict[str, Any],
+    out_dir: Path | None = None,
+    progress: bool = True,
+    resume: Path | None = None,
+    init_from: Path | None = None,
+    stop_after_s: float | None = None,
+) -> Path:
+    """Train one detector; returns the path of ``best.pt``.
+
+    ``resume``: continue the run whose ``last.pt`` this is (weights, EMA, optimiser, schedule,
+    epoch and time spent; each epoch's data order and augmentation depend on (seed, epoch) alone).
+    ``init_from``: start this config's schedule from another run's weights. ``stop_after_s``:
+    end this session after the first epoch that finishes past that many seconds, to be resumed.
+    """
     if task not in TASKS:
         raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+    if resume is not None and init_from is not None:
+        raise ValueError("give --resume (continue a run) or --init-from (start a run from weights), not both")
     from tqdm import tqdm
 
     seed_everything(config["seed"])
     torch.set_num_threads(int(config["threads"]))
     spec = spec_for_task(task, config)
+    tcfg = config["train"]
+    total_steps = tcfg["epochs"] * tcfg["steps_per_epoch"]
+    state = _resume_state(Path(resume), task, spec, total_steps) if resume is not None else None
+    initial = _initial_weights(Path(init_from), task, spec) if init_from is not None else None
     out = Path(out_dir or config["out_dir"].format(task=task))
     out.mkdir(parents=True, exist_ok=True)
     with (out / "config.yaml").open("w") as fh:
@@ -431,9 +489,14 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
 
     train_ds, val_ds, data_info = build_datasets(task, config)
     collate = collate_pairs if task == "global" else collate_crops
-    tcfg = config["train"]
     device = resolve_device(str(tcfg["device"]))
-    model = Detector(spec).to(device)
+    model = Detector(spec)
+    spent: dict[str, float] = {}  # training seconds by device type, over every session of this run
+    if initial is not None:
+        model.load_state_dict(initial[0])
+        spent = initial[1]
+        data_info = {**data_info, "initial_weights": str(init_from)}
+    model = model.to(device)
     ema = ModelEMA(model, tcfg["ema_decay"])
     criterion = DetectionLoss(spec.num_classes, spec.reg_max, spec.strides).to(device)
     decay: list[torch.nn.Parameter] = []
@@ -444,10 +507,9 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         [{"params": decay, "weight_decay": tcfg["weight_decay"]}, {"params": no_decay, "weight_decay": 0.0}],
         lr=tcfg["lr"],
     )
-    total_steps = tcfg["epochs"] * tcfg["steps_per_epoch"]
     max_wall_s = float(tcfg["max_wall_s"])
-    started = time.time()
-    step = 0
+    step, first_epoch, rows, best, run_spent = 0, 1, [], -1.0, 0.0
+    started = time.time()  # moved back by the time earlier sessions of this run spent (below)
 
     def progress_fraction(steps_done: int) -> float:
         """How far through the schedule: steps done, or wall time spent when that is further."""
@@ -461,14 +523,28 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         )
 
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, schedule)
+    if state is not None:
+        try:
+            model.load_state_dict(state["model"])
+            ema.ema.load_state_dict(state["ema"])
+            optimizer.load_state_dict(state["optimizer"])
+            scheduler.load_state_dict(state["scheduler"])
+            ema.updates, step, first_epoch = int(state["ema_updates"]), int(state["step"]), int(state["epoch"]) + 1
+            rows, spent = list(state["rows"]), dict(state["train_wall_s_by_device"])
+            run_spent = float(state["run_wall_s"])
+        except (KeyError, RuntimeError, ValueError, TypeError) as error:
+            raise ResumeError(
+                f"cannot resume: the checkpoint's state does not fit ({type(error).__name__}: {error})"
+            ) from None
+        # best.pt lives beside last.pt; resumed into another folder, the best is counted afresh
+        best = float(state["best"]) if (out / "best.pt").is_file() else -1.0
+    session_started = time.time()
+    started = session_started - run_spent
     val_loader = DataLoader(val_ds, batch_size=4, shuffle=False, collate_fn=collate)
-    generator = torch.Generator().manual_seed(config["seed"])
     workers = int(tcfg["loader_workers"])
 
-    rows: list[dict[str, Any]] = []
-    best = -1.0
-    for epoch in range(1, tcfg["epochs"] + 1):
-        if epoch > 1 and progress_fraction(step) >= 1.0:  # the first epoch always runs, so a checkpoint exists
+    for epoch in range(first_epoch, tcfg["epochs"] + 1):
+        if epoch > first_epoch and progress_fraction(step) >= 1.0:  # a session's first epoch always runs
             print(
                 f"[{task}] wall-clock budget of {max_wall_s:.0f} s spent after {epoch - 1} epochs ({step} steps)",
                 flush=True,
@@ -478,6 +554,7 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
         model.train()
         draws = tcfg["steps_per_epoch"] * tcfg["batch_size"]
         weights = train_ds.sample_weights
+        generator = torch.Generator().manual_seed(int(config["seed"]) * 1_000_003 + epoch)  # this epoch's data order
         sampler: torch.utils.data.Sampler[int]
         if weights is None:
             sampler = torch.utils.data.RandomSampler(train_ds, replacement=True, num_samples=draws, generator=generator)
@@ -537,15 +614,54 @@ def train(task: str, config: dict[str, Any], out_dir: Path | None = None, progre
             writer.writeheader()
             writer.writerows(rows)
         plot_curves(rows, out / "curves.png")
-        extra = {"epoch": epoch, "metrics": metrics, "data": data_info, "train_wall_s": round(time.time() - started, 1)}
-        save_checkpoint(out / "last.pt", ema.ema, spec, task, config, extra)
+        by_device = add_seconds(spent, device.type, time.time() - session_started)
+        extra = {
+            "epoch": epoch,
+            "metrics": metrics,
+            "data": data_info,
+            "train_wall_s": round(sum(by_device.values()), 1),
+            "train_wall_s_by_device": by_device,
+        }
         score = metrics["ap50"] if not math.isnan(metrics["ap50"]) else 0.0
-        if score > best:
-            best = score
+        improved = score > best
+        best = max(best, score)
+        resume_state = {
+            "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+            "ema": {k: v.detach().cpu() for k, v in ema.ema.state_dict().items()},
+            "ema_updates": ema.updates,
+            "optimizer": _to_cpu(optimizer.state_dict()),
+            "scheduler": scheduler.state_dict(),
+            "epoch": epoch,
+            "step": step,
+            "total_steps": total_steps,
+            "best": best,
+            "rows": rows,
+            "run_wall_s": round(time.time() - started, 1),
+            "train_wall_s_by_device": by_device,
+        }
+        save_checkpoint(out / "last.pt", ema.ema, spec, task, config, {**extra, "resume": resume_state})
+        if improved:
             save_checkpoint(out / "best.pt", ema.ema, spec, task, config, extra)
         print(
             f"[{task}] epoch {epoch}: loss {row['loss']:.3f} val AP50 {metrics['ap50']:.3f} "
             f"AP50:95 {metrics['ap50_95']:.3f} ({row['elapsed_s']} s)",
             flush=True,
         )
+        if stop_after_s is not None and time.time() - session_started >= stop_after_s and epoch < tcfg["epochs"]:
+            print(
+                f"[{task}] stopped after epoch {epoch} (--stop-after-s); resume with --resume {out / 'last.pt'}",
+                flush=True,
+            )
+            break
     return out / "best.pt"
+
+
+def _to_cpu(value: Any) -> Any:
+    """``value`` (an optimiser state) with every tensor moved to the CPU, so a GPU run resumes anywhere."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, dict):
+        return {k: _to_cpu(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_to_cpu(v) for v in value]
+    return value
