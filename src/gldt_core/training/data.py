@@ -71,6 +71,10 @@ class FramePair:
     def images(self) -> tuple[np.ndarray, np.ndarray]:
         return _decode(self.previous), _decode(self.current)
 
+    def current_image(self) -> np.ndarray:
+        """Frame t alone, for the single-frame local model (decoding is most of a sample's cost)."""
+        return _decode(self.current)
+
 
 def _encode(image: np.ndarray) -> bytes:
     ok, buf = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
@@ -356,7 +360,7 @@ class LocalCropDataset(Dataset):
 
     def __getitem__(self, index: int) -> tuple[torch.Tensor, torch.Tensor]:
         pair = self.pairs[index]
-        _, current = pair.images()
+        current = pair.current_image()
         h, w = current.shape[:2]
         epoch = self.epoch if self.train else 0
         rng = np.random.default_rng((self.seed, epoch, index, 7))

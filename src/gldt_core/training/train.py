@@ -574,7 +574,13 @@ def train(
         sums = {"loss": 0.0, "box": 0.0, "cls": 0.0, "dfl": 0.0}
         batches = 0
         bar = tqdm(loader, desc=f"{task} epoch {epoch}/{tcfg['epochs']}", disable=not progress, dynamic_ncols=True)
+        # Where an epoch's time goes: waiting for the loader's batches, or the steps themselves
+        # (which end in a device sync, float(loss)), so a run shows which of the two sets its pace.
+        data_wait_s = compute_s = 0.0
+        fetch_started = time.perf_counter()
         for batch in bar:
+            step_started = time.perf_counter()
+            data_wait_s += step_started - fetch_started
             maps, cur, boxes = _run_batch(model, task, batch, device)
             loss, parts = criterion(maps, boxes)
             optimizer.zero_grad(set_to_none=True)
@@ -588,6 +594,8 @@ def train(
             sums["loss"] += float(loss.detach())
             for k, v in parts.items():
                 sums[k] += v
+            fetch_started = time.perf_counter()
+            compute_s += fetch_started - step_started
             bar.set_postfix(loss=f"{float(loss.detach()):.3f}")
             if progress_fraction(step) >= 1.0:
                 break  # the wall-clock budget ends the schedule mid-epoch
@@ -604,6 +612,8 @@ def train(
             **{k: v / n for k, v in sums.items()},
             "lr": optimizer.param_groups[0]["lr"],
             "elapsed_s": round(time.time() - started, 1),
+            "data_wait_s": round(data_wait_s, 1),
+            "compute_s": round(compute_s, 1),
         }
         row.update({f"val_{k}": v for k, v in metrics.items() if k != "num_gt"})
         if task == "global" and spec.stff_levels:
@@ -644,7 +654,8 @@ def train(
             save_checkpoint(out / "best.pt", ema.ema, spec, task, config, extra)
         print(
             f"[{task}] epoch {epoch}: loss {row['loss']:.3f} val AP50 {metrics['ap50']:.3f} "
-            f"AP50:95 {metrics['ap50_95']:.3f} ({row['elapsed_s']} s)",
+            f"AP50:95 {metrics['ap50_95']:.3f} ({row['elapsed_s']} s; waited {data_wait_s:.0f} s for batches, "
+            f"stepped {compute_s:.0f} s)",
             flush=True,
         )
         if stop_after_s is not None and time.time() - session_started >= stop_after_s and epoch < tcfg["epochs"]:
