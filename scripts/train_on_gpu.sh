@@ -10,7 +10,8 @@
 # time is up (--stop-after-s), so GPU and CPU sessions add up; copy RESULT's runs/CONFIG/last.pt
 # back there and commit it. A run without one starts afresh; one whose config sets
 # train.max_wall_s (the *_gpu.yaml ones) has its schedule squeezed into the time it gets.
-# Phases, each logged with its elapsed time:
+# Phases, each logged with its elapsed time, after every run of $RUNS is checked (exit 2 and one
+# line for a bad one, before anything starts):
 #   1. smoke: two steps of each task on one synthetic scene, so a broken set-up fails in seconds
 #      instead of after the data preparation;
 #   2. data: decode the Halmstad clips and render the synthetic scenes into the cache
@@ -28,10 +29,33 @@ py=${PYTHON:-python3}
 export PYTHONPATH="$PWD/src${PYTHONPATH:+:$PYTHONPATH}" PYTHONUNBUFFERED=1 OMP_NUM_THREADS=1
 configs=${CONFIGS:-src/gldt_core/configs/train}
 device=${DEVICE:-cuda}
-runs=(${RUNS:-local:local_wide_long global:global_wide_long})
+read -r -a runs <<<"${RUNS:-local:local_wide_long global:global_wide_long}"
 start=$SECONDS
-mkdir -p "$result" runs
 say() { echo "[train_on_gpu +$((SECONDS - start)) s] $*"; }
+
+# Every run checked before anything starts: TASK:CONFIG, the config readable, and whether its
+# schedule is squeezed into the time it gets (train.max_wall_s set) or counted in steps.
+if ((${#runs[@]} == 0)); then
+    echo "train_on_gpu: RUNS names no run (expected TASK:CONFIG ...)" >&2
+    exit 2
+fi
+declare -A squeezed=()
+for run in "${runs[@]}"; do
+    task=${run%%:*} name=${run#*:}
+    if [[ $run != *:* || ! $task =~ ^(global|local)$ || -z $name ]]; then
+        echo "train_on_gpu: bad run '$run' in RUNS (expected global:CONFIG or local:CONFIG)" >&2
+        exit 2
+    fi
+    squeezed[$name]=$("$py" -c "
+import sys
+from gldt_core.training.train import load_config
+try:
+    print(int(float(load_config('$configs/$name.yaml')['train']['max_wall_s']) > 0))
+except (OSError, ValueError) as error:
+    sys.exit(f'train_on_gpu: run $run: {error}')
+") || exit 2
+done
+mkdir -p "$result" runs
 
 say "smoke: $device steps of both tasks"
 DEVICE=$device "$py" - <<'PY'
@@ -52,7 +76,7 @@ for task in ("global", "local"):
     train(task, config, out_dir=f"/tmp/gldt-smoke/{task}", progress=False)
 PY
 
-cores=$(nproc --all)  # plain nproc honours the OMP_NUM_THREADS=1 set above
+cores=$(env -u OMP_NUM_THREADS nproc)  # the cores this process may use; nproc honours OMP_NUM_THREADS
 # One data build per task: the runs of a task share its cache (same clips, steps and scales).
 declare -A first_config=()
 for run in "${runs[@]}"; do
@@ -82,13 +106,15 @@ pids=()
 for run in "${runs[@]}"; do
     task=${run%%:*} name=${run#*:}
     mkdir -p "runs/$name"
-    session=(--stop-after-s "$budget")
-    if [[ -f checkpoints/$name/last.pt ]]; then
-        session+=(--resume "checkpoints/$name/last.pt")
-        say "$name: resumes checkpoints/$name/last.pt"
+    if ((squeezed[$name])); then
+        session=(--max-wall-s "$budget")
+    else
+        session=(--stop-after-s "$budget")
+        if [[ -f checkpoints/$name/last.pt ]]; then
+            session+=(--resume "checkpoints/$name/last.pt")
+            say "$name: resumes checkpoints/$name/last.pt"
+        fi
     fi
-    squeezed=$("$py" -c "from gldt_core.training.train import load_config; print(float(load_config('$configs/$name.yaml')['train']['max_wall_s']) > 0)")
-    [[ $squeezed == True ]] && session+=(--max-wall-s "$budget")
     "$py" -m gldt_core train "$task" --config "$configs/$name.yaml" --out "runs/$name" "${session[@]}" \
         --device "$device" --workers "$workers" --no-progress >"runs/$name/stdout.txt" 2>&1 &
     pids+=($!)

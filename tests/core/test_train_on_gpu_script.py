@@ -73,7 +73,7 @@ def test_the_gpu_script_trains_packs_and_resumes_a_committed_checkpoint(tmp_path
     )
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert "local_wide_long: resumes checkpoints/local_wide_long/last.pt" in done.stdout
-    cores = os.cpu_count() or 1
+    cores = len(os.sched_getaffinity(0))
     assert f"with {cores} workers" in done.stdout, "the data phase must use every core, whatever OMP_NUM_THREADS says"
 
     checkpoint = torch.load(root / "runs" / "local_wide_long" / "last.pt", map_location="cpu", weights_only=False)
@@ -81,3 +81,24 @@ def test_the_gpu_script_trains_packs_and_resumes_a_committed_checkpoint(tmp_path
     with tarfile.open(tmp_path / "result" / "local_wide_long.tar.gz") as packed:
         names = packed.getnames()
     assert "runs/local_wide_long/last.pt" in names and "runs/local_wide_long/stdout.txt" in names
+
+
+@pytest.mark.parametrize(
+    ("runs", "message"),
+    [
+        ("local_wide_long", "bad run 'local_wide_long'"),
+        ("detector:local_wide_long", "bad run 'detector:local_wide_long'"),
+        ("local:no_such_config", "training config not found"),
+        ("  ", "RUNS names no run"),
+    ],
+)
+def test_the_gpu_script_refuses_a_bad_run_list_in_one_line_before_it_starts(
+    tmp_path: Path, runs: str, message: str
+) -> None:
+    env = {**os.environ, "DEVICE": "cpu", "PYTHON": sys.executable, "RUNS": runs}
+    done = subprocess.run(
+        ["bash", str(SCRIPT), str(tmp_path / "result"), "200"], cwd=REPO, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 2
+    assert message in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
+    assert "smoke" not in done.stdout and not (tmp_path / "result").exists()

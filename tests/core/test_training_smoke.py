@@ -160,7 +160,7 @@ def test_a_detector_run_stopped_and_resumed_ends_with_the_same_weights(tmp_path:
     assert checkpoint["epoch"] == 3 and checkpoint["resume"]["step"] == 6
     for (name, a), b in zip(straight.state_dict().items(), resumed.state_dict().values()):
         assert torch.equal(a, b), f"{name} differs after a resume"
-    assert checkpoint["train_wall_s_by_device"]["cpu"] >= first["train_wall_s_by_device"]["cpu"]
+    assert checkpoint["train_wall_s_by_device"]["cpu"] > first["train_wall_s_by_device"]["cpu"]
     assert len(checkpoint["resume"]["rows"]) == 3
 
 
@@ -170,19 +170,29 @@ def test_a_resume_against_another_network_or_schedule_is_refused_in_one_line(tmp
     config = tiny_config("local", data_cache)
     train("local", config, out_dir=tmp_path / "run", progress=False)
     last, best = tmp_path / "run" / "last.pt", tmp_path / "run" / "best.pt"
+    config["train"]["epochs"] = 3  # the run above stops after its single epoch, so it is resumable here
     longer = tiny_config("local", data_cache)
     longer["train"]["epochs"] = 4
+    faster = tiny_config("local", data_cache)
+    faster["train"]["lr"] = 0.02
+    squeezed = tiny_config("local", data_cache)
+    squeezed["train"]["max_wall_s"] = 60
     wider = tiny_config("local", data_cache)
     wider["model"]["channels"] = [8, 8, 8, 16, 16]
     (tmp_path / "broken.pt").write_bytes(b"not a checkpoint")
     cases = [
         ("global", tiny_config("global", data_cache), last, "is a local checkpoint, this run trains global"),
-        ("local", longer, last, "was scheduled for 2 steps, the config gives 8"),
+        ("local", tiny_config("local", data_cache), last, "finished its schedule \\(epoch 1 of 1\\)"),
+        ("local", longer, last, "another schedule \\(epochs 1 -> 4\\)"),
+        ("local", faster, last, "another schedule \\(lr 0.01 -> 0.02\\)"),
+        ("local", squeezed, last, "cannot resume a schedule squeezed into train.max_wall_s"),
         ("local", wider, last, "has the network"),
         ("local", config, best, "holds no training state"),
+        ("local", config, tmp_path / "second_stage.pt", "is not a detector checkpoint"),
         ("local", config, tmp_path / "missing.pt", "checkpoint not found"),
         ("local", config, tmp_path / "broken.pt", "is not a readable checkpoint"),
     ]
+    torch.save({"kind": "second_stage"}, tmp_path / "second_stage.pt")
     for task, cfg, path, message in cases:
         with pytest.raises(ResumeError, match=message) as caught:
             train(task, cfg, out_dir=tmp_path / "again", progress=False, resume=path)
@@ -195,7 +205,31 @@ def test_a_run_started_from_another_runs_weights_keeps_their_training_time(tmp_p
     first = train("local", config, out_dir=tmp_path / "first", progress=False)
     spent_first = torch.load(first, map_location="cpu", weights_only=False)["train_wall_s_by_device"]["cpu"]
     train("local", config, out_dir=tmp_path / "second", progress=False, init_from=first)
-    _, checkpoint = load_checkpoint(tmp_path / "second" / "last.pt")
+    train("local", config, out_dir=tmp_path / "scratch", progress=False)
+    second, checkpoint = load_checkpoint(tmp_path / "second" / "last.pt")
+    scratch, _ = load_checkpoint(tmp_path / "scratch" / "last.pt")
+    assert any(not torch.equal(a, b) for a, b in zip(second.state_dict().values(), scratch.state_dict().values())), (
+        "a run started from another run's weights ended where a run from scratch did"
+    )
     assert checkpoint["train_wall_s_by_device"]["cpu"] > spent_first
     assert checkpoint["data"]["initial_weights"] == str(first)
     assert checkpoint["resume"]["step"] == 2, "--init-from starts the config's schedule from its first step"
+
+
+def test_a_session_resumed_into_another_folder_does_not_take_a_stale_best_for_its_own(
+    tmp_path: Path, data_cache: Path
+) -> None:
+    """best.pt belongs to one run: resumed into a folder whose best.pt came from another run, the
+    run keeps its own best from its next epoch on instead of comparing against a stranger's."""
+    config = tiny_config("local", data_cache)
+    config["train"]["epochs"] = 3
+    train("local", config, out_dir=tmp_path / "a", progress=False, stop_after_s=0.0)
+    other = tiny_config("local", data_cache)
+    other["seed"] = 1
+    train("local", other, out_dir=tmp_path / "b", progress=False)  # leaves another run's best.pt in b
+    stranger = torch.load(tmp_path / "b" / "best.pt", map_location="cpu", weights_only=False)
+    train("local", config, out_dir=tmp_path / "b", progress=False, resume=tmp_path / "a" / "last.pt")
+    ours = torch.load(tmp_path / "b" / "best.pt", map_location="cpu", weights_only=False)
+    first = torch.load(tmp_path / "a" / "last.pt", map_location="cpu", weights_only=False)
+    assert ours["run_id"] == first["resume"]["run_id"] != stranger["run_id"]
+    assert ours["epoch"] == 2, "the resumed run's first epoch is its best in a folder it had no best in"

@@ -27,8 +27,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--stop-after-s",
         type=float,
         default=None,
-        help="detectors: end this session after the first epoch that finishes past this many seconds "
-        "(then --resume its last.pt); unlike --max-wall-s it does not shorten the schedule",
+        help="detectors: end this session at an epoch's end, before the epoch that would end past this many "
+        "seconds (judged by the last one's length), then --resume its last.pt; unlike --max-wall-s it does "
+        "not shorten the schedule",
     )
     parser.add_argument("--config", required=True, help="training YAML (see src/gldt_core/configs/)")
     parser.add_argument("--out", default=None, help="run directory (default: out_dir from the config)")

@@ -18,19 +18,20 @@ class ResumeError(ValueError):
     """A checkpoint that cannot be resumed from (missing, unreadable, or for another config)."""
 
 
-def read_checkpoint(path: Path | str) -> dict[str, Any]:
-    """The mapping saved at ``path``; :class:`ResumeError` when it is missing or not a checkpoint."""
+def read_checkpoint(path: Path | str, action: str = "resume") -> dict[str, Any]:
+    """The mapping saved at ``path``; :class:`ResumeError` ("cannot ``action``: ...") when it is
+    missing or not a checkpoint."""
     path = Path(path)
     if not path.is_file():
-        raise ResumeError(f"cannot resume: checkpoint not found: {path}")
+        raise ResumeError(f"cannot {action}: checkpoint not found: {path}")
     try:
         checkpoint = torch.load(path, map_location="cpu", weights_only=False)
     except Exception as error:  # a truncated or foreign file: torch raises several kinds
         raise ResumeError(
-            f"cannot resume: {path} is not a readable checkpoint ({type(error).__name__}: {error})"
+            f"cannot {action}: {path} is not a readable checkpoint ({type(error).__name__}: {error})"
         ) from None
     if not isinstance(checkpoint, dict):
-        raise ResumeError(f"cannot resume: {path} holds a {type(checkpoint).__name__}, not a training checkpoint")
+        raise ResumeError(f"cannot {action}: {path} holds a {type(checkpoint).__name__}, not a training checkpoint")
     return checkpoint
 
 

@@ -416,41 +416,71 @@ def load_checkpoint(path: Path | str) -> tuple[Detector, dict[str, Any]]:
     return model.eval(), ckpt
 
 
-def _resume_state(path: Path, task: str, spec: ModelSpec, total_steps: int) -> dict[str, Any]:
-    """The state a ``last.pt`` carries to continue a run, checked against this run's task, network
-    and schedule; :class:`ResumeError` with one line otherwise."""
+#: The schedule settings a resumed run must share with the run it continues (``train.*``); the
+#: optimiser and scheduler state carry them, so a change would be ignored without a word.
+RESUME_SCHEDULE_KEYS = ("epochs", "steps_per_epoch", "batch_size", "lr", "weight_decay", "warmup_steps", "ema_decay")
+
+
+def _checked_network(checkpoint: dict[str, Any], path: Path, task: str, spec: ModelSpec, action: str) -> None:
+    """:class:`ResumeError` unless ``checkpoint`` holds a ``task`` detector with ``spec``'s network."""
+    if checkpoint.get("task") not in TASKS:
+        raise ResumeError(f"cannot {action}: {path} is not a detector checkpoint (written by gldt train global|local)")
+    if checkpoint.get("task") != task:
+        raise ResumeError(f"cannot {action}: {path} is a {checkpoint.get('task')} checkpoint, this run trains {task}")
+    if checkpoint.get("spec") != spec.to_dict():
+        raise ResumeError(
+            f"cannot {action}: {path} has the network {checkpoint.get('spec')}, the config asks for {spec.to_dict()}"
+        )
+
+
+def _resume_checkpoint(path: Path, task: str, spec: ModelSpec, config: dict[str, Any]) -> dict[str, Any]:
+    """The ``last.pt`` at ``path``, checked against this run's task, network and schedule;
+    :class:`ResumeError` with one line otherwise."""
     checkpoint = read_checkpoint(path)
+    _checked_network(checkpoint, path, task, spec, "resume")
     state = checkpoint.get("resume")
     if not isinstance(state, dict):
         raise ResumeError(f"cannot resume: {path} holds no training state (only last.pt does; best.pt: --init-from)")
-    if checkpoint.get("task") != task:
-        raise ResumeError(f"cannot resume: {path} is a {checkpoint.get('task')} checkpoint, this run trains {task}")
-    if checkpoint.get("spec") != spec.to_dict():
+    tcfg = config["train"]
+    if float(tcfg["max_wall_s"]) > 0:
         raise ResumeError(
-            f"cannot resume: {path} has the network {checkpoint.get('spec')}, the config asks for {spec.to_dict()}"
+            "cannot resume a schedule squeezed into train.max_wall_s (it would restart its clock); "
+            "resumable runs count steps: set train.max_wall_s to 0 and end sessions with --stop-after-s"
         )
-    if state.get("total_steps") != total_steps:
-        raise ResumeError(
-            f"cannot resume: {path} was scheduled for {state.get('total_steps')} steps, "
-            f"the config gives {total_steps} (train.epochs x train.steps_per_epoch)"
-        )
-    return state
+    theirs = checkpoint.get("config", {}).get("train", {})
+    changed = [key for key in RESUME_SCHEDULE_KEYS if theirs.get(key) != tcfg[key]]
+    if changed:
+        detail = ", ".join(f"{key} {theirs.get(key)} -> {tcfg[key]}" for key in changed)
+        raise ResumeError(f"cannot resume: {path} was trained on another schedule ({detail})")
+    epoch = checkpoint.get("epoch")
+    if isinstance(epoch, int) and epoch >= int(tcfg["epochs"]):
+        raise ResumeError(f"cannot resume: {path} finished its schedule (epoch {epoch} of {tcfg['epochs']})")
+    return checkpoint
 
 
 def _initial_weights(path: Path, task: str, spec: ModelSpec) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
     """The (EMA) weights of a finished or stopped run to start a new schedule from, and the training
     seconds by device that went into them."""
-    checkpoint = read_checkpoint(path)
-    if checkpoint.get("task") != task or checkpoint.get("spec") != spec.to_dict():
-        raise ResumeError(
-            f"cannot start from {path}: it is a {checkpoint.get('task')} network {checkpoint.get('spec')}, "
-            f"this run trains {task} with {spec.to_dict()}"
-        )
+    checkpoint = read_checkpoint(path, "start from")
+    _checked_network(checkpoint, path, task, spec, "start from")
     spent = checkpoint.get("train_wall_s_by_device")
     if spent is None:  # checkpoints written before the time was kept by device
         device = str(checkpoint.get("config", {}).get("train", {}).get("device", "unknown"))
         spent = {device: float(checkpoint.get("train_wall_s") or 0.0)}
     return checkpoint["state_dict"], dict(spent)
+
+
+def _best_so_far(out: Path, run_id: str) -> float:
+    """AP50 of the ``best.pt`` beside this run's ``last.pt``, if that file is this run's; -1 otherwise
+    (a session resumed into another folder keeps its best there from its own epochs on)."""
+    path = out / "best.pt"
+    if not path.is_file():
+        return -1.0
+    best = torch.load(path, map_location="cpu", weights_only=False)
+    if best.get("run_id") != run_id:
+        return -1.0
+    ap50 = best.get("metrics", {}).get("ap50", -1.0)
+    return -1.0 if ap50 is None or math.isnan(ap50) else float(ap50)
 
 
 def train(
@@ -467,7 +497,9 @@ def train(
     ``resume``: continue the run whose ``last.pt`` this is (weights, EMA, optimiser, schedule,
     epoch and time spent; each epoch's data order and augmentation depend on (seed, epoch) alone).
     ``init_from``: start this config's schedule from another run's weights. ``stop_after_s``:
-    end this session after the first epoch that finishes past that many seconds, to be resumed.
+    end this session at an epoch's end, before an epoch that would end past that many seconds
+    (judged by the last epoch's length) or after one that did, to be resumed. A resumed schedule
+    counts steps (``train.max_wall_s`` 0) and keeps the settings of :data:`RESUME_SCHEDULE_KEYS`.
     """
     if task not in TASKS:
         raise ValueError(f"task must be one of {TASKS}, got {task!r}")
@@ -480,7 +512,7 @@ def train(
     spec = spec_for_task(task, config)
     tcfg = config["train"]
     total_steps = tcfg["epochs"] * tcfg["steps_per_epoch"]
-    state = _resume_state(Path(resume), task, spec, total_steps) if resume is not None else None
+    resumed = _resume_checkpoint(Path(resume), task, spec, config) if resume is not None else None
     initial = _initial_weights(Path(init_from), task, spec) if init_from is not None else None
     out = Path(out_dir or config["out_dir"].format(task=task))
     out.mkdir(parents=True, exist_ok=True)
@@ -508,8 +540,9 @@ def train(
         lr=tcfg["lr"],
     )
     max_wall_s = float(tcfg["max_wall_s"])
-    step, first_epoch, rows, best, run_spent = 0, 1, [], -1.0, 0.0
-    started = time.time()  # moved back by the time earlier sessions of this run spent (below)
+    step, first_epoch, rows, best = 0, 1, [], -1.0
+    run_id = f"{task}-{time.strftime('%Y%m%dT%H%M%S')}-{random.randrange(16**6):06x}"  # ties best.pt to its run
+    started = time.time()
 
     def progress_fraction(steps_done: int) -> float:
         """How far through the schedule: steps done, or wall time spent when that is further."""
@@ -523,27 +556,35 @@ def train(
         )
 
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer, schedule)
-    if state is not None:
+    if resumed is not None:
         try:
+            state = resumed["resume"]
             model.load_state_dict(state["model"])
-            ema.ema.load_state_dict(state["ema"])
+            ema.ema.load_state_dict(resumed["state_dict"])  # what last.pt saves is the averaged model
             optimizer.load_state_dict(state["optimizer"])
             scheduler.load_state_dict(state["scheduler"])
-            ema.updates, step, first_epoch = int(state["ema_updates"]), int(state["step"]), int(state["epoch"]) + 1
-            rows, spent = list(state["rows"]), dict(state["train_wall_s_by_device"])
-            run_spent = float(state["run_wall_s"])
+            ema.updates, step, first_epoch = int(state["ema_updates"]), int(state["step"]), int(resumed["epoch"]) + 1
+            rows, spent = list(state["rows"]), dict(resumed["train_wall_s_by_device"])
+            run_id = str(state.get("run_id") or run_id)
         except (KeyError, RuntimeError, ValueError, TypeError) as error:
             raise ResumeError(
-                f"cannot resume: the checkpoint's state does not fit ({type(error).__name__}: {error})"
+                f"cannot resume: {resume}: its state does not fit ({type(error).__name__}: {error})"
             ) from None
-        # best.pt lives beside last.pt; resumed into another folder, the best is counted afresh
-        best = float(state["best"]) if (out / "best.pt").is_file() else -1.0
+        best = _best_so_far(out, run_id)
     session_started = time.time()
-    started = session_started - run_spent
     val_loader = DataLoader(val_ds, batch_size=4, shuffle=False, collate_fn=collate)
     workers = int(tcfg["loader_workers"])
 
+    epoch_s = 0.0  # how long the last epoch took, validation included
     for epoch in range(first_epoch, tcfg["epochs"] + 1):
+        if stop_after_s is not None and epoch > first_epoch and time.time() - session_started + epoch_s > stop_after_s:
+            print(
+                f"[{task}] stopped before epoch {epoch}, which would end past --stop-after-s {stop_after_s:.0f}; "
+                f"resume with --resume {out / 'last.pt'}",
+                flush=True,
+            )
+            break
+        epoch_started = time.time()
         if epoch > first_epoch and progress_fraction(step) >= 1.0:  # a session's first epoch always runs
             print(
                 f"[{task}] wall-clock budget of {max_wall_s:.0f} s spent after {epoch - 1} epochs ({step} steps)",
@@ -620,7 +661,7 @@ def train(
             row["alpha_mean"] = float(np.mean(ema.ema.stff_alphas()))
         rows.append(row)
         with (out / "log.csv").open("w", newline="") as fh:
-            writer = csv.DictWriter(fh, fieldnames=list(rows[-1].keys()))
+            writer = csv.DictWriter(fh, fieldnames=list(dict.fromkeys(key for r in rows for key in r)))
             writer.writeheader()
             writer.writerows(rows)
         plot_curves(rows, out / "curves.png")
@@ -637,7 +678,6 @@ def train(
         best = max(best, score)
         resume_state = {
             "model": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-            "ema": {k: v.detach().cpu() for k, v in ema.ema.state_dict().items()},
             "ema_updates": ema.updates,
             "optimizer": _to_cpu(optimizer.state_dict()),
             "scheduler": scheduler.state_dict(),
@@ -646,18 +686,19 @@ def train(
             "total_steps": total_steps,
             "best": best,
             "rows": rows,
-            "run_wall_s": round(time.time() - started, 1),
+            "run_id": run_id,
             "train_wall_s_by_device": by_device,
         }
         save_checkpoint(out / "last.pt", ema.ema, spec, task, config, {**extra, "resume": resume_state})
         if improved:
-            save_checkpoint(out / "best.pt", ema.ema, spec, task, config, extra)
+            save_checkpoint(out / "best.pt", ema.ema, spec, task, config, {**extra, "run_id": run_id})
         print(
             f"[{task}] epoch {epoch}: loss {row['loss']:.3f} val AP50 {metrics['ap50']:.3f} "
             f"AP50:95 {metrics['ap50_95']:.3f} ({row['elapsed_s']} s; waited {data_wait_s:.0f} s for batches, "
             f"stepped {compute_s:.0f} s)",
             flush=True,
         )
+        epoch_s = time.time() - epoch_started
         if stop_after_s is not None and time.time() - session_started >= stop_after_s and epoch < tcfg["epochs"]:
             print(
                 f"[{task}] stopped after epoch {epoch} (--stop-after-s); resume with --resume {out / 'last.pt'}",
