@@ -476,7 +476,10 @@ def _best_so_far(out: Path, run_id: str) -> float:
     path = out / "best.pt"
     if not path.is_file():
         return -1.0
-    best = torch.load(path, map_location="cpu", weights_only=False)
+    try:
+        best = read_checkpoint(path)
+    except ResumeError:  # a torn file is no run's best
+        return -1.0
     if best.get("run_id") != run_id:
         return -1.0
     ap50 = best.get("metrics", {}).get("ap50", -1.0)
@@ -572,6 +575,12 @@ def train(
             ) from None
         best = _best_so_far(out, run_id)
     session_started = time.time()
+    spent_before = sum(spent.values())
+
+    def trained_s() -> float:
+        """Training time of this run so far, earlier sessions (and --init-from's run) included."""
+        return spent_before + time.time() - session_started
+
     val_loader = DataLoader(val_ds, batch_size=4, shuffle=False, collate_fn=collate)
     workers = int(tcfg["loader_workers"])
 
@@ -643,7 +652,7 @@ def train(
             if not progress and step % 10 == 0:
                 print(
                     f"[{task}] epoch {epoch} step {step}/{total_steps} loss {float(loss.detach()):.3f} "
-                    f"({time.time() - started:.0f} s)",
+                    f"({trained_s():.0f} s)",
                     flush=True,
                 )
         n = max(batches, 1)
@@ -652,7 +661,7 @@ def train(
             "epoch": epoch,
             **{k: v / n for k, v in sums.items()},
             "lr": optimizer.param_groups[0]["lr"],
-            "elapsed_s": round(time.time() - started, 1),
+            "elapsed_s": round(trained_s(), 1),
             "data_wait_s": round(data_wait_s, 1),
             "compute_s": round(compute_s, 1),
         }
