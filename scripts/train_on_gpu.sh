@@ -21,6 +21,10 @@
 #   4. pack: RESULT_DIR/<config>.tar.gz per run (best.pt, last.pt, log.csv, curves.png, stdout).
 # $DEVICE (default cuda) and $CONFIGS (default src/gldt_core/configs/train) let the script be
 # tried on a CPU with shrunken configs of the same names.
+# With the `device` tool: scripts/gpu_bundle.sh pack (the clips into the checkout, what training
+# does not need out of it), then run(command="export GLDT_HALMSTAD=$PWD/.gpu_data/halmstad-visible;
+# bash scripts/train_on_gpu.sh $OUT 480", carry=[".gpu_data"], timeout_s=560), then
+# scripts/gpu_bundle.sh restore, and copy each run's last.pt back to checkpoints/CONFIG/.
 # Export a checkpoint afterwards on any machine: gldt export runs/global_gpu/best.pt --out ...
 set -euo pipefail
 result=${1:?usage: scripts/train_on_gpu.sh RESULT_DIR [DEADLINE_S]}

@@ -136,6 +136,25 @@ def test_halmstad_split_is_disjoint_and_holds_out_two_in_five() -> None:
         split_clips(["clip1"])
 
 
+def test_halmstad_split_follows_the_annotations_not_which_videos_are_present(tmp_path) -> None:
+    """A copy without some videos (the val_b clips left off a GPU machine) splits the same way;
+    listing by video would shift every later clip of a category into another split."""
+    from gldt_core.eval.halmstad_split import halmstad_split
+
+    (tmp_path / "gt").mkdir()
+    (tmp_path / "videos").mkdir()
+    names = [f"V_DRONE_{i:03d}" for i in range(12)] + [f"V_BIRD_{i:03d}" for i in range(6)]
+    for name in names:
+        (tmp_path / "gt" / f"{name}.txt").write_text("")
+        (tmp_path / "videos" / f"{name}.mp4").write_bytes(b"")
+    full = halmstad_split(tmp_path)
+    for name in full["val_b"] + ["V_DRONE_000"]:
+        (tmp_path / "videos" / f"{name}.mp4").unlink()
+    assert halmstad_split(tmp_path) == full == split_clips(names)
+    with pytest.raises(FileNotFoundError, match="is not a directory"):
+        halmstad_split(tmp_path / "elsewhere")
+
+
 def test_nms_can_also_drop_a_box_nested_in_a_better_one() -> None:
     boxes = np.array([[100.0, 100, 180, 140], [120, 110, 160, 130], [300, 300, 320, 320]])
     scores = np.array([0.9, 0.8, 0.7])

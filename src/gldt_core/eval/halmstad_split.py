@@ -7,6 +7,12 @@ The rule is simple and stable: within each category (``V_DRONE``, ``V_BIRD``, ``
 sorted by name, the clip at position ``i`` goes to ``val`` when ``i % 5 == 2``, to ``val_b`` when
 ``i % 5 == 4`` (about 20 % each), and to ``train`` otherwise. The rule, not a hard-coded list, is
 the contract, so it still works if clips are added.
+
+The clips are the annotated ones (``gt/*.txt``), whether or not their videos are present: a
+missing video is an error where that clip is read, never a quietly different split (one clip
+fewer would shift every later clip of its category into another split, training on validation
+clips). So a copy of the dataset that leaves some videos out, such as the training and ``val``
+videos alone sent to a GPU machine (``scripts/train_on_gpu.sh``), splits the same way.
 """
 
 from __future__ import annotations
@@ -43,12 +49,11 @@ def split_clips(names: list[str]) -> dict[str, list[str]]:
 
 
 def list_clips(root: Path | str = DEFAULT_ROOT) -> list[str]:
-    """Clip stems that have both a video and a ground-truth file under ``root``."""
-    root = Path(root)
-    videos = root / "videos"
-    if not videos.is_dir():
-        raise FileNotFoundError(f"Halmstad clips not found: {videos} is not a directory")
-    return sorted(p.stem for p in videos.glob("*.mp4") if (root / "gt" / f"{p.stem}.txt").is_file())
+    """Stems of the annotated clips under ``root`` (``gt/NAME.txt``; the video is ``videos/NAME.mp4``)."""
+    gt = Path(root) / "gt"
+    if not gt.is_dir():
+        raise FileNotFoundError(f"Halmstad clips not found: {gt} is not a directory")
+    return sorted(p.stem for p in gt.glob("*.txt"))
 
 
 def halmstad_split(root: Path | str = DEFAULT_ROOT) -> dict[str, list[str]]:
