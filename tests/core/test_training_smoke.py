@@ -233,3 +233,31 @@ def test_a_session_resumed_into_another_folder_does_not_take_a_stale_best_for_it
     first = torch.load(tmp_path / "a" / "last.pt", map_location="cpu", weights_only=False)
     assert ours["run_id"] == first["resume"]["run_id"] != stranger["run_id"]
     assert ours["epoch"] == 2, "the resumed run's first epoch is its best in a folder it had no best in"
+
+
+class _ThreadCounts(torch.utils.data.Dataset):
+    def __len__(self) -> int:
+        return 2
+
+    def __getitem__(self, index: int) -> tuple[int, int]:
+        import cv2
+
+        return cv2.getNumThreads(), torch.get_num_threads()
+
+
+def test_a_loader_worker_decodes_on_one_thread(monkeypatch: pytest.MonkeyPatch) -> None:
+    """OpenCV sizes its pool by the machine's cores, not OMP_NUM_THREADS: on a 16-core GPU machine
+    every loader worker would start 16 threads."""
+    import cv2
+
+    from gldt_core.training.train import one_thread_worker
+
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(4)  # what a many-core machine gives a fresh process
+    try:
+        loader = torch.utils.data.DataLoader(
+            _ThreadCounts(), batch_size=None, num_workers=1, worker_init_fn=one_thread_worker
+        )
+        assert [tuple(map(int, item)) for item in loader] == [(1, 1), (1, 1)]
+    finally:
+        cv2.setNumThreads(previous)

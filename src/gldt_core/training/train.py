@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import torch
 import yaml
@@ -512,6 +513,7 @@ def train(
 
     seed_everything(config["seed"])
     torch.set_num_threads(int(config["threads"]))
+    cv2.setNumThreads(int(config["threads"]))  # the validation's decoding, and augmenting without workers
     spec = spec_for_task(task, config)
     tcfg = config["train"]
     total_steps = tcfg["epochs"] * tcfg["steps_per_epoch"]
@@ -620,6 +622,7 @@ def train(
             num_workers=workers,
             pin_memory=device.type == "cuda",
             prefetch_factor=4 if workers else None,
+            worker_init_fn=one_thread_worker,
         )
         sums = {"loss": 0.0, "box": 0.0, "cls": 0.0, "dfl": 0.0}
         batches = 0
@@ -715,6 +718,14 @@ def train(
             )
             break
     return out / "best.pt"
+
+
+def one_thread_worker(_worker_id: int) -> None:
+    """A loader worker is one core's worth of decoding and augmenting: OpenCV's own thread pool
+    (as many threads as the machine has cores, whatever OMP_NUM_THREADS says) would otherwise
+    start in every worker and oversubscribe the cores (16 workers x 16 threads on a GPU machine)."""
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)
 
 
 def _to_cpu(value: Any) -> Any:
