@@ -178,7 +178,7 @@ def test_a_stopped_node_is_killed_and_restarted_like_a_dead_one(
 ) -> None:
     clock = FakeClock()
     children = _stand_in_graph(monkeypatch, clock, max_restarts=5)
-    noted: list[str] = []
+    noted: list[tuple[str, ...]] = []
     try:
         victim = "jptrack_tracker"
         _beat_all_but(children, "")
@@ -191,7 +191,7 @@ def test_a_stopped_node_is_killed_and_restarted_like_a_dead_one(
         clock.now += 0.2
         _beat_all_but(children, victim)
         assert children.supervise(noted.append) == [victim]
-        assert noted == [victim] and stopped.returncode == -signal.SIGKILL
+        assert noted == [(victim,)] and stopped.returncode == -signal.SIGKILL
         assert children.restarts == {name: int(name == victim) for name in children.processes}
         restarted = children.processes[victim]
         assert restarted.pid != stopped.pid and restarted.poll() is None
@@ -217,7 +217,7 @@ def test_a_group_of_nodes_is_one_process_killed_and_restarted_as_a_whole(
 
     clock = FakeClock()
     children = _stand_in_graph(monkeypatch, clock, max_restarts=5, processes=GROUPED)
-    noted: list[str] = []
+    noted: list[tuple[str, ...]] = []
     try:
         group = next(group for group in PROCESS_LAYOUTS[GROUPED] if "jptrack_tracker" in group)
         assert len(group) > 1 and len({id(p) for p in children.processes.values()}) == len(PROCESS_LAYOUTS[GROUPED])
@@ -232,7 +232,7 @@ def test_a_group_of_nodes_is_one_process_killed_and_restarted_as_a_whole(
         clock.now += 0.2
         _beat_all_but(children, "jptrack_tracker")
         assert sorted(children.supervise(noted.append)) == sorted(group)
-        assert sorted(noted) == sorted(group) and stopped.returncode == -signal.SIGKILL
+        assert noted == [tuple(group)] and stopped.returncode == -signal.SIGKILL
         restarted = children.processes["jptrack_tracker"]
         assert restarted.pid != stopped.pid and all(children.processes[name] is restarted for name in group)
         assert children.restarts == {name: int(name in group) for name in children.processes}

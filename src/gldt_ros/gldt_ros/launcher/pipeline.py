@@ -520,14 +520,15 @@ class NodeProcesses:
                 and not (self.supervising and self.restarts[name] < self.args.max_restarts)
             ]
 
-    def supervise(self, before_restart: Callable[[str], None] | None = None) -> list[str]:
+    def supervise(self, before_restart: Callable[[tuple[str, ...]], None] | None = None) -> list[str]:
         """Restart every node that died (once start-up is over), at most ``--max-restarts`` times each;
         a node that hangs (:meth:`_kill_silent`) is killed first, then restarted the same way.
 
         A node dying is a fault to survive, not a reason to stop the graph: the others keep their
-        state and the restarted node rejoins through DDS discovery. ``before_restart(name)`` runs
-        before the new process starts (the driver notes which endpoints were the dead one's), and
-        outside this object's lock, which the driver's own waits take.
+        state and the restarted node rejoins through DDS discovery. ``before_restart(names)`` runs
+        once per process, with all its nodes, before the new process starts (the driver notes which
+        endpoints were the dead one's, and relinks the whole group at once), and outside this
+        object's lock, which the driver's own waits take.
         """
         self._clean_segments_if_due()
         with self._lock:
@@ -541,12 +542,12 @@ class NodeProcesses:
             ]
         if any(name in hung for group in dying for name in group):
             time.sleep(HUNG_RESTART_PAUSE_S)
-        for name in [name for group in dying for name in group]:
+        for group in dying:
             if before_restart is not None:
                 try:
-                    before_restart(name)
+                    before_restart(tuple(group))
                 except Exception as error:  # noqa: BLE001 - the supervisor must outlive a failed notice
-                    print(f"pipeline: noting the restart of {name} failed: {error}", flush=True)
+                    print(f"pipeline: noting the restart of {group_label(group)} failed: {error}", flush=True)
         restarted: list[str] = []
         with self._lock:
             if not self.supervising:
@@ -752,7 +753,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _supervise_until(
     children: NodeProcesses,
     stop: threading.Event,
-    on_restart: Callable[[str], None] | None = None,
+    on_restart: Callable[[tuple[str, ...]], None] | None = None,
     period_s: float = 0.2,
 ) -> None:
     """Restart dead nodes until asked to stop (each node prints "ready" once it is back up),

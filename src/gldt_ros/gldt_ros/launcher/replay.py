@@ -25,7 +25,7 @@ from __future__ import annotations
 import argparse
 import threading
 import time
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 
 from builtin_interfaces.msg import Time
@@ -348,16 +348,18 @@ class GraphDriver(Node):
             statuses = dict(self._statuses)
         return {name: {pair.key: pair.value for pair in status.values} for name, status in statuses.items()}
 
-    def note_restarted(self, name: str) -> None:
-        """The supervisor is about to restart node ``name`` (called before the new process starts,
-        so nothing seen here is the new one's): forget its last status (its links were the dead
-        process's) and, in lockstep, stop waiting for the frame in flight and relink first."""
-        dead_endpoints = node_endpoint_gids(self, name, self.get_namespace())
+    def note_restarted(self, names: Sequence[str]) -> None:
+        """The supervisor is about to restart the process of nodes ``names`` (called before the new
+        process starts, so nothing seen here is the new one's): forget their last statuses (their
+        links were the dead process's) and, in lockstep, stop waiting for the frame in flight and
+        relink first. A group's nodes are noted together, so the relink waits for all of them."""
+        dead_endpoints = {name: node_endpoint_gids(self, name, self.get_namespace()) for name in names}
         with self._statuses_lock:
-            self._statuses.pop(name, None)
+            for name in names:
+                self._statuses.pop(name, None)
         if self.args.lockstep:
             with self._answered_cv:
-                self._restarted[name] = dead_endpoints
+                self._restarted.update(dead_endpoints)
                 self._answered_cv.notify_all()
 
     def _relink_after_restarts(self, stop: threading.Event, dead: Callable[[], list[str]]) -> str | None:
