@@ -1,9 +1,9 @@
-"""``scripts/train_on_gpu.sh`` on the CPU, with its configs shrunk to seconds.
+"""``scripts/train_on_gpu.sh`` and ``scripts/train_long.sh`` on the CPU, with configs shrunk to seconds.
 
-The script runs only where a GPU is lent, a few minutes at a time, so a fault in it costs the
+The GPU script runs only where a GPU is lent, a few minutes at a time, so a fault in it costs the
 whole lease: it once pointed at a configs folder that had moved, and once decoded the clips on
-one core because ``nproc`` honours the ``OMP_NUM_THREADS=1`` it exports. Here it runs every
-phase (smoke, data, training, packing) on synthetic scenes and resumes a committed checkpoint.
+one core because ``nproc`` honours the ``OMP_NUM_THREADS=1`` it exports. Here both scripts run
+every phase on synthetic scenes and resume a committed checkpoint.
 """
 
 from __future__ import annotations
@@ -102,3 +102,32 @@ def test_the_gpu_script_refuses_a_bad_run_list_in_one_line_before_it_starts(
     assert done.returncode == 2
     assert message in done.stderr and len(done.stderr.strip().splitlines()) == 1, done.stderr
     assert "smoke" not in done.stdout and not (tmp_path / "result").exists()
+
+
+def test_the_long_run_script_resumes_a_committed_checkpoint_and_puts_it_back(tmp_path: Path) -> None:
+    """scripts/train_long.sh: the CPU's share of a long run between GPU leases."""
+    configs = tmp_path / "configs"
+    configs.mkdir()
+    (configs / "local_wide_long.yaml").write_text(SHRUNK.format(base=LONG_CONFIG, cache=tmp_path / "cache"))
+    root = tmp_path / "checkout"
+    root.mkdir()
+    (root / "src").symlink_to(REPO / "src")
+    config = load_config(configs / "local_wide_long.yaml")
+    train("local", config, out_dir=tmp_path / "earlier", progress=False, stop_after_s=0.0)
+    committed = root / "checkpoints" / "local_wide_long" / "last.pt"
+    committed.parent.mkdir(parents=True)
+    (tmp_path / "earlier" / "last.pt").rename(committed)
+
+    env = {**os.environ, "CONFIGS": str(configs), "PYTHON": sys.executable}
+    done = subprocess.run(
+        ["bash", str(REPO / "scripts" / "train_long.sh"), "120", "local_wide_long"],
+        cwd=root,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "--resume checkpoints/local_wide_long/last.pt" in done.stdout
+    checkpoint = torch.load(committed, map_location="cpu", weights_only=False)
+    assert checkpoint["epoch"] == 3, "the committed checkpoint is the run's state after this session"
