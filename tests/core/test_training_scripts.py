@@ -42,18 +42,26 @@ train: {{epochs: 3, steps_per_epoch: 2, batch_size: 2, warmup_steps: 1}}
 """
 
 
-def test_the_gpu_script_trains_packs_and_resumes_a_committed_checkpoint(tmp_path: Path) -> None:
+def checkout_with_one_committed_epoch(tmp_path: Path) -> tuple[Path, Path]:
+    """``(configs, checkout)``: the shrunk long config, and a checkout root (``src/``) whose
+    ``checkpoints/local_wide_long/last.pt`` holds the first of its three epochs, as committed."""
     configs = tmp_path / "configs"
     configs.mkdir()
     (configs / "local_wide_long.yaml").write_text(SHRUNK.format(base=LONG_CONFIG, cache=tmp_path / "cache"))
-    root = tmp_path / "checkout"  # the script works from a checkout's root: src/, checkpoints/, runs/
+    root = tmp_path / "checkout"  # the scripts work from a checkout's root: src/, checkpoints/, runs/
     root.mkdir()
     (root / "src").symlink_to(REPO / "src")
     config = load_config(configs / "local_wide_long.yaml")
     config["train"]["device"] = "cpu"
     train("local", config, out_dir=tmp_path / "earlier", progress=False, stop_after_s=0.0)  # one epoch of three
-    (root / "checkpoints" / "local_wide_long").mkdir(parents=True)
-    (tmp_path / "earlier" / "last.pt").rename(root / "checkpoints" / "local_wide_long" / "last.pt")
+    committed = root / "checkpoints" / "local_wide_long" / "last.pt"
+    committed.parent.mkdir(parents=True)
+    (tmp_path / "earlier" / "last.pt").rename(committed)
+    return configs, root
+
+
+def test_the_gpu_script_trains_packs_and_resumes_a_committed_checkpoint(tmp_path: Path) -> None:
+    configs, root = checkout_with_one_committed_epoch(tmp_path)
 
     env = {
         **os.environ,
@@ -106,17 +114,8 @@ def test_the_gpu_script_refuses_a_bad_run_list_in_one_line_before_it_starts(
 
 def test_the_long_run_script_resumes_a_committed_checkpoint_and_puts_it_back(tmp_path: Path) -> None:
     """scripts/train_long.sh: the CPU's share of a long run between GPU leases."""
-    configs = tmp_path / "configs"
-    configs.mkdir()
-    (configs / "local_wide_long.yaml").write_text(SHRUNK.format(base=LONG_CONFIG, cache=tmp_path / "cache"))
-    root = tmp_path / "checkout"
-    root.mkdir()
-    (root / "src").symlink_to(REPO / "src")
-    config = load_config(configs / "local_wide_long.yaml")
-    train("local", config, out_dir=tmp_path / "earlier", progress=False, stop_after_s=0.0)
+    configs, root = checkout_with_one_committed_epoch(tmp_path)
     committed = root / "checkpoints" / "local_wide_long" / "last.pt"
-    committed.parent.mkdir(parents=True)
-    (tmp_path / "earlier" / "last.pt").rename(committed)
 
     env = {**os.environ, "CONFIGS": str(configs), "PYTHON": sys.executable}
     done = subprocess.run(
