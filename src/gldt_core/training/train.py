@@ -693,14 +693,10 @@ def train(
             "ema_updates": ema.updates,
             "optimizer": _to_cpu(optimizer.state_dict()),
             "scheduler": scheduler.state_dict(),
-            "epoch": epoch,
             "step": step,
-            "total_steps": total_steps,
-            "best": best,
             "rows": rows,
             "run_id": run_id,
-            "train_wall_s_by_device": by_device,
-        }
+        }  # the epoch and the time by device are the checkpoint's own fields; the best is best.pt's
         save_checkpoint(out / "last.pt", ema.ema, spec, task, config, {**extra, "resume": resume_state})
         if improved:
             save_checkpoint(out / "best.pt", ema.ema, spec, task, config, {**extra, "run_id": run_id})
