@@ -84,7 +84,6 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypa
 
         monkeypatch.setattr(reuse, "features", counted_features)
         published: list = []
-        monkeypatch.setattr(node.publisher, "publish", published.append)
         full = GlobalDetector(
             num_threads=1,
             score_threshold=node.detector.score_threshold,
@@ -95,7 +94,7 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypa
         # (skipped, or an LD frame), then 3-4 again in a stretch.
         sequence = [(0, 0), (0, 1), (1, 2), (3, 4)]
         for previous, current in sequence:
-            node.on_pair(pair(previous, current))
+            published.append(node.detect(pair(previous, current)))
         assert len(runs) == 2  # the first pair and the one after the gap
         for (previous, current), message in zip(sequence, published):
             expected = as_published(
@@ -113,9 +112,7 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypa
         rclpy.shutdown(context=context)
 
 
-def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_frame_itself(
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
+def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_frame_itself() -> None:
     """frame_pair_buffer leaves the previous image out once this node answered that frame: the
     boxes must be those of the full pair. A node that does not hold the frame (restarted) pairs
     the current frame with itself and says so, instead of failing on the empty image."""
@@ -146,7 +143,6 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
     try:
         node = GlobalDetectorNode(context=context)
         published: list = []
-        monkeypatch.setattr(node.publisher, "publish", published.append)
         warnings: list[str] = []
         node.warn_throttled = lambda key, text: warnings.append(text)  # type: ignore[method-assign]
         full = GlobalDetector(
@@ -155,13 +151,13 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
             classes=node.detector.classes,
             feature_reuse=False,
         )
-        node.on_pair(pair(0, 1, with_previous=True))
-        node.on_pair(pair(1, 2, with_previous=False))  # frame 1 is held here
+        published.append(node.detect(pair(0, 1, with_previous=True)))
+        published.append(node.detect(pair(1, 2, with_previous=False)))  # frame 1 is held here
         assert not warnings
         np.testing.assert_allclose(boxes(published[-1]), expected(1, 2), atol=1e-4)
         assert len(published[-1].detections) > 0
 
-        node.on_pair(pair(0, 1, with_previous=False))  # asks for frame 0; this node holds frame 2
+        published.append(node.detect(pair(0, 1, with_previous=False)))  # asks for frame 0; this node holds frame 2
         assert len(warnings) == 1 and "without its previous frame 0" in warnings[0] and "itself" in warnings[0]
         np.testing.assert_allclose(boxes(published[-1]), expected(1, 1), atol=1e-4)
         node.destroy_node()

@@ -53,12 +53,21 @@ def offline_rows(bag: Path) -> tuple[np.ndarray, np.ndarray | None]:
 
 
 #: (bag, how the nodes share processes): every bag through `pipeline`'s default layout (grouped), and
-#: the real bag also through one process per node (`--processes per-node`) and through all nodes in
-#: `pipeline`'s own process (`--in-process`), which must give the same tracks.
+#: the real bag also through one process per node (`--processes per-node`), through one process
+#: for all five, the global detector on its worker thread (`--processes one-process`), and through
+#: all nodes in `pipeline`'s own process (`--in-process`), which must give the same tracks.
 REPLAYS = [(bag, "default") for bag in BAGS] + [
-    (bag, placement) for bag in BAGS if bag.name in MOTA_FLOOR for placement in ("per-node", "in-process")
+    (bag, placement)
+    for bag in BAGS
+    if bag.name in MOTA_FLOOR
+    for placement in ("per-node", "one-process", "in-process")
 ]
-PLACEMENT_ARGS = {"default": [], "per-node": ["--processes", "per-node"], "in-process": ["--in-process"]}
+PLACEMENT_ARGS = {
+    "default": [],
+    "per-node": ["--processes", "per-node"],
+    "one-process": ["--processes", "one-process"],
+    "in-process": ["--in-process"],
+}
 
 
 @pytest.fixture(

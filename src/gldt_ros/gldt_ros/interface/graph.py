@@ -34,14 +34,18 @@ NODES: dict[str, str] = {
 #: executable). ``grouped`` (the default) puts every node a LOCAL frame passes through (buffer,
 #: scheduler, tracker, local detector) in one process, so the five hops of such a frame after the
 #: camera's cost no process switch, and leaves the global detector, which works on a pair for
-#: longer than a frame period, in a process of its own, in parallel. A group restarts as a whole:
-#: a crash of the local detector costs the tracks their ids. ``per-node`` isolates every node.
-#: ``python -m gldt_ros.bench.graph --processes LAYOUT`` measures what each costs per frame.
+#: longer than a frame period, in a process of its own, in parallel. ``one-process`` puts all five
+#: in one process: the global detector's pair and detections stay in it too, and its model runs on
+#: a thread of its own, so the other nodes go on answering frames meanwhile. A group restarts as a
+#: whole: a crash of the local detector costs the tracks their ids. ``per-node`` isolates every
+#: node. ``python -m gldt_ros.bench.graph --processes LAYOUT`` measures what each costs per frame.
 PER_NODE = "per-node"
 GROUPED = "grouped"
+ONE_PROCESS = "one-process"
 PROCESS_LAYOUTS: dict[str, tuple[tuple[str, ...], ...]] = {
     PER_NODE: tuple((name,) for name in NODES),
     GROUPED: (("frame_pair_buffer", "mode_scheduler", "jptrack_tracker", "local_detector"), ("global_detector",)),
+    ONE_PROCESS: (tuple(NODES),),
 }
 #: The layout ``pipeline`` starts when not told otherwise.
 DEFAULT_PROCESS_LAYOUT = GROUPED

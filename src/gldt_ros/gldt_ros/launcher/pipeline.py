@@ -4,7 +4,8 @@ into it and record its outputs.
 Like a launch file, it starts the nodes of the graph (:data:`gldt_ros.interface.graph.NODES`) in
 processes placed by ``--processes`` (:data:`gldt_ros.interface.graph.PROCESS_LAYOUTS`): by default
 the nodes a LOCAL frame passes through share one process and the global detector has its own;
-``--processes per-node`` gives each node its own; ``--in-process`` runs all of them in this
+``--processes one-process`` puts all five in one, ``--processes per-node`` gives each node its
+own; ``--in-process`` runs all of them in this
 process's executor, which is handy for debugging and profiling. With ``--bag`` it plays the
 bag's camera, camera_info and ground-truth topics into the graph, either at the bag's pace
 times ``--rate`` or in ``--lockstep``: frame t+1 is only published after ``/gldt/tracks`` has
@@ -189,7 +190,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         default=DEFAULT_PROCESS_LAYOUT,
         help="how the nodes share processes: grouped, the frame buffer, scheduler, tracker and local "
         "detector in one and the global detector in its own (no process hop within a LOCAL frame; a "
-        "group restarts as a whole); per-node, each in its own. Default %(default)s",
+        "group restarts as a whole); one-process, all five in one (the least transport per frame; "
+        "any crash restarts the whole graph); per-node, each in its own. Default %(default)s",
     )
     parser.add_argument(
         "--domain-id",

@@ -8,10 +8,16 @@ image, which in a GD stretch it is; any other pair (one skipped, a restarted buf
 Once it has answered a pair, the buffer sends the next one without its previous image (it is the
 frame kept here); should that frame be gone (this node restarted in between), the current frame is
 paired with itself, as on a stream's first frame, and a warning says so.
+
+The model runs on a thread of its own (:class:`gldt_ros.runtime.worker.NewestFirstWorker`), and the
+detections are published from the thread that spins the node: in a process it shares with other
+nodes (``pipeline --processes one-process``) they keep answering frames while it works, as they
+would with the detector in another process.
 """
 
 from __future__ import annotations
 
+import functools
 import time
 from typing import Any
 
@@ -27,6 +33,7 @@ from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr
 from gldt_ros.interface.graph import WARM_UP_FRAME_ID
 from gldt_ros.interface.params import detector_kwargs, parse_classes
 from gldt_ros.runtime.node_base import GldtNode, run_node
+from gldt_ros.runtime.worker import NewestFirstWorker
 
 #: Blank pairs run before the node reports ready (:meth:`GlobalDetectorNode.warm_up`): the first
 #: computes the previous frame's features too, the second reuses them, as in a GD stretch.
@@ -46,8 +53,18 @@ class GlobalDetectorNode(GldtNode):
         self.last_pair: GlobalCarry | None = None  # the last pair's current input and its features
         self.last_pair_index: int | None = None  # and that pair's frame index
         self.warm_up()
+        self.worker: NewestFirstWorker[FramePair] = NewestFirstWorker(
+            self.guarded(self.answer, "frame pair"),
+            depth=int(self.param("pair_queue_depth")),
+            on_error=self.fail_from_thread,
+            name="gldt-global-detector",
+        )
         # Last, once warm: pipeline takes the graph as up when this subscription is matched.
-        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.guarded(self.on_pair, "frame pair"), pairs_qos)
+        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.worker.submit, pairs_qos)
+
+    def destroy_node(self) -> None:
+        self.worker.stop()
+        super().destroy_node()
 
     def warm_up(self) -> None:
         """Run the model on blank pairs of a 1080p camera's input size before the node reports
@@ -81,7 +98,13 @@ class GlobalDetectorNode(GldtNode):
         )
         return GlobalCarry(current)
 
-    def on_pair(self, pair: FramePair) -> None:
+    def answer(self, pair: FramePair) -> None:
+        """The worker's work: detect on ``pair``, and publish the detections from the spinning thread."""
+        self.call_on_spin_thread(functools.partial(self.publisher.publish, self.detect(pair)))
+
+    def detect(self, pair: FramePair) -> DetectionArray:
+        """The detections of ``pair``, in full-frame pixels; the features of its current frame are
+        kept for the next pair."""
         start = time.perf_counter()
         current = image_to_bgr(pair.current)
         if pair.previous.height == 0:  # sent without it: the frame kept from the last pair
@@ -100,14 +123,12 @@ class GlobalDetectorNode(GldtNode):
         detections = drop_nested(
             filter_classes(raw, GLOBAL_COLUMNS, self.classes), float(self.param("nested_threshold"))
         )
-        self.publisher.publish(
-            DetectionArray(
-                header=pair.header,
-                frame_index=pair.frame_index,
-                mode=DetectionArray.MODE_GLOBAL,
-                processing_time=time.perf_counter() - start,
-                detections=detections_to_msgs(detections, Detection.SOURCE_GLOBAL),
-            )
+        return DetectionArray(
+            header=pair.header,
+            frame_index=pair.frame_index,
+            mode=DetectionArray.MODE_GLOBAL,
+            processing_time=time.perf_counter() - start,
+            detections=detections_to_msgs(detections, Detection.SOURCE_GLOBAL),
         )
 
 

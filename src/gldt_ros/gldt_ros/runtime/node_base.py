@@ -32,6 +32,7 @@ profile, stack dumps, bounded teardown) and spins the node.
 from __future__ import annotations
 
 import os
+import sys
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -182,6 +183,42 @@ class GldtNode(Node):
             clock=clock if clock is not None else Clock(clock_type=ClockType.STEADY_TIME),
             autostart=autostart,
         )
+
+    def call_on_spin_thread(self, callback: Callable[[], None]) -> None:
+        """Run ``callback`` soon on the thread that spins this node; callable from any thread (a
+        :class:`gldt_ros.runtime.worker.NewestFirstWorker` hands its result back this way). It goes
+        through the executor's task queue, which wakes the executor as a message would, and what it
+        publishes is delivered as a callback's is. rclpy's events executor crashes the process when
+        such a task raises, so an error that is not a stop ends the node through
+        :meth:`fail_from_thread` instead."""
+        executor = self.executor
+        if executor is None:
+            raise RuntimeError(f"{self.get_name()}: call_on_spin_thread before the node is spun")
+
+        deliver = callback if self._local is None else self._local.dispatching(callback)
+
+        def run() -> None:
+            try:
+                deliver()
+            except BaseException as error:  # noqa: BLE001 - never out of a task (see the docstring)
+                self.fail_from_thread(error)
+
+        executor.create_task(run)
+
+    def fail_from_thread(self, error: BaseException) -> None:
+        """End this node's process on an unexpected error raised off the executor's callbacks (a
+        worker thread, a posted task), as an error escaping a callback would: logged with its
+        traceback, exit status 1, for ``pipeline`` to restart it. A stop in progress (the context
+        shut down) is not an error and ends nothing."""
+        if not self.context.ok():
+            return
+        import traceback
+
+        trace = "".join(traceback.format_exception(error)).rstrip()
+        self.get_logger().fatal(f"{type(error).__name__}: {error}; exiting\n{trace}")
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(1)
 
     def count_event(self, key: str, count: int = 1) -> None:
         """Add ``count`` events to the counter ``key`` (:data:`PAIRS_SKIPPED`, :data:`STALE_DROPPED`,
