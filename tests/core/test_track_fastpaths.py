@@ -22,7 +22,8 @@ from gldt_core.track.state import boxes_xyxy
 def reference_p_match(
     model: PmrModel, centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float, vel_std: float
 ) -> np.ndarray:
-    """PMR's P_match with the propagation written as matrices (A m, A C A^T)."""
+    """PMR's P_match with the propagation written as matrices (A m, A C A^T): the mixture's
+    density relative to its highest value at a component's mean, at most 1."""
     steps = max(t - model.t_loss, 0.0) * ref_fps
     a = np.zeros((2, 4))
     a[0, 0] = a[1, 1] = 1.0
@@ -32,12 +33,16 @@ def reference_p_match(
     floor = (pos_std_size * model.size) ** 2 + (vel_std * steps) ** 2
     cov[:, 0, 0] += floor
     cov[:, 1, 1] += floor
-    out = np.zeros(len(centers))
-    for w, m, c in zip(model.weights, mu, cov):
-        d = centers - m
-        d2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(c), d)
-        out += w * np.exp(-0.5 * d2)
-    return out
+
+    def density(points: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(points))
+        for w, m, c in zip(model.weights, mu, cov):
+            d = points - m
+            d2 = np.einsum("ni,ij,nj->n", d, np.linalg.inv(c), d)
+            out += w * np.exp(-0.5 * d2) / (2.0 * np.pi * np.sqrt(np.linalg.det(c)))
+        return out
+
+    return np.minimum(1.0, density(centers) / density(mu).max())
 
 
 def history(n: int, seed: int) -> np.ndarray:

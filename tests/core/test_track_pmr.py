@@ -80,6 +80,22 @@ def test_p_match_follows_the_target_while_it_is_lost() -> None:
     assert p[1] < 0.2 and p[2] < 0.05  # where it was, and far off its path
 
 
+def test_where_the_likelier_hypothesis_puts_the_target_p_match_is_one() -> None:
+    """Two hypotheses after a turn: P_match is the mixture's density relative to its mode
+    (``tests/core/test_track_fastpaths.py`` checks it against matrix algebra), so the likelier
+    hypothesis's place scores 1. A weighted sum of peak-normalised components stayed below the
+    larger weight there, which ``P_final > tau_t`` (0.6, at a time weight of 0.8) never passed."""
+    history = make_history(30, 7, True)
+    t_loss = float(history[-1, 0])
+    model = fit_pmr(history, t_loss, 0.1, 30.0)
+    assert len(model.weights) == 2 and model.weights.max() < 0.75
+    steps = 30.0
+    means = model.mean_pv[:, :2] + steps * model.mean_pv[:, 2:4]
+    p = p_match(model, np.vstack([means, means.mean(axis=0) + [0.0, 400.0]]), t_loss + 1.0, 30.0, 0.5, 2.0)
+    assert p[:2].max() == pytest.approx(1.0)
+    assert p[:2].min() > 0.0 and p[2] < 1e-3  # the other hypothesis counts; far off both, nothing
+
+
 def test_a_turn_gives_two_components_and_two_hypotheses() -> None:
     history = make_history(30, 7, True)
     t_loss = float(history[-1, 0])

@@ -11,10 +11,15 @@ The paper leaves three things ill-posed; our choices and why:
 
 1. **P_match is a density, not a probability.** A Gaussian density has units (1/px^2 ...), so a
    fixed ``tau_t = 0.6`` would mean something different for every feature scaling and box size.
-   We use the *peak-normalised* mixture likelihood ``P_match = sum_k pi_k exp(-d_k^2 / 2)`` with
-   ``d_k`` the Mahalanobis distance to component k: it is unit-free, lies in [0, 1], equals 1 at a
-   component mean, and ``tau_t`` becomes a Mahalanobis gate (``P_final > 0.6`` with ``C_time``
-   near 0.9 accepts a single-component match within about 0.9 sigma).
+   We use the mixture density *relative to its mode*, ``P_match = min(1, p(x) / max_j p(mu_j))``
+   with ``p(x) = sum_k pi_k N(x; mu_k, Sigma_k)`` and the mode taken at the components' means
+   (:func:`mixture_scale`): it is unit-free, lies in [0, 1], equals 1 where the likelier
+   hypothesis puts the target, and ``tau_t`` becomes a Mahalanobis gate (with one component
+   ``P_match = exp(-d^2 / 2)``, so ``P_final > 0.6`` with ``C_time`` near 0.9 accepts a match
+   within about 0.9 sigma). The weighted sum of peak-normalised components, ``sum_k pi_k
+   exp(-d_k^2 / 2)``, used before, stays below the larger weight at a component's mean once the
+   two hypotheses part (a turning target), so such a track could never pass ``tau_t``
+   (``docs/experiment-log.md``, Tracking, 2026-12-04).
 2. **Lost targets keep moving.** History positions describe where the target *was*; after a
    two-second occlusion the detection is elsewhere. Each sample's position feature is therefore
    its constant-velocity extrapolation to the loss time ``t_L`` (``p_i + v_i (t_L - t_i)``), and at
@@ -41,6 +46,7 @@ Units: velocities in px per reference frame (``ref_fps``), time in seconds, ``ga
 from __future__ import annotations
 
 import functools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -179,7 +185,7 @@ def c_time(model: PmrModel, t: float, gamma: float) -> float:
 def p_match(
     model: PmrModel, centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float, vel_std: float
 ) -> np.ndarray:
-    """Eq. 20 (peak-normalised, see the module doc) for detection centres ``(D, 2)`` at ``t``."""
+    """Eq. 20 (relative to the mixture's mode, see the module doc) for detection centres ``(D, 2)`` at ``t``."""
     return p_match_many([model], centers, t, ref_fps, pos_std_size, vel_std)[0]
 
 
@@ -222,6 +228,23 @@ def match_exponent(position: tuple[V, V, V, V, V, V], x: V, y: V) -> V:
     return -0.5 * ((syy * dx * dx - 2.0 * sxy * dx * dy + sxx * dy * dy) / det)
 
 
+def mixture_scale(model: PmrModel, steps: float, floor: float) -> tuple[list[float], float]:
+    """``(coefficients, mode)`` of a mixture propagated ``steps`` reference frames with ``floor``:
+    :func:`p_match_many` scores a point ``min(1, sum_k coefficient_k exp(-d_k^2 / 2) / mode)``,
+    the density relative to its highest value at a component's mean (module docstring, 1.). The
+    coefficients are ``pi_k / sqrt(det_k)`` (the densities' common ``2 pi`` cancels)."""
+    positions = [
+        propagated_position(FLOATS, mean, cov, steps, floor)
+        for mean, cov in zip(model.mean_pv.tolist(), model.cov_pv.tolist())
+    ]
+    coefficients = [w / math.sqrt(position[5]) for w, position in zip(model.weights.tolist(), positions)]
+    mode = max(
+        sum(c * math.exp(match_exponent(position, at[0], at[1])) for c, position in zip(coefficients, positions))
+        for at in positions
+    )
+    return coefficients, mode
+
+
 def p_match_many(
     models: list[PmrModel],
     centers: np.ndarray,
@@ -243,6 +266,7 @@ def p_match_many(
     counts = [len(m.weights) for m in models]
     steps_m = [max(t - m.t_loss, 0.0) * ref_fps for m in models]
     floor_m = [floor_variance(m.size, st, pos_std_size, vel_std) for m, st in zip(models, steps_m)]
+    scales = [mixture_scale(m, st, fl) for m, st, fl in zip(models, steps_m, floor_m)]
     if on_floats(sum(counts) * len(centers)):
         points = centers.tolist()
         exponents = []
@@ -253,20 +277,21 @@ def p_match_many(
         like = np.exp(np.array(exponents)).tolist()
         out = []
         row = 0
-        for m in models:
+        for coefficients, mode in scales:
             mixture = [0.0] * len(points)
-            for w in m.weights.tolist():
+            for w in coefficients:
                 mixture = [acc + w * v for acc, v in zip(mixture, like[row * len(points) : (row + 1) * len(points)])]
                 row += 1
-            out.append(mixture)
+            out.append([min(1.0, v / mode) for v in mixture])
         return np.array(out).reshape(len(models), len(points))
     mean = np.concatenate([m.mean_pv for m in models]).T  # (4, sum K)
     cov = np.concatenate([m.cov_pv for m in models]).transpose(1, 2, 0)  # (4, 4, sum K)
     position = propagated_position(ARRAYS, mean, cov, np.repeat(steps_m, counts), np.repeat(floor_m, counts))
     columns = tuple(v[:, None] for v in position)
     like = np.exp(match_exponent(columns, centers[None, :, 0], centers[None, :, 1]))
-    weighted = np.concatenate([m.weights for m in models])[:, None] * like
-    return np.add.reduceat(weighted, np.cumsum([0] + counts[:-1]), axis=0)
+    weighted = np.concatenate([coefficients for coefficients, _ in scales])[:, None] * like
+    mixture = np.add.reduceat(weighted, np.cumsum([0] + counts[:-1]), axis=0)
+    return np.minimum(1.0, mixture / np.array([mode for _, mode in scales])[:, None])
 
 
 @functools.lru_cache(maxsize=1024)
