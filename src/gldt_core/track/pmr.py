@@ -290,8 +290,8 @@ def p_match_many(
     columns = tuple(v[:, None] for v in position)
     like = np.exp(match_exponent(columns, centers[None, :, 0], centers[None, :, 1]))
     weighted = np.concatenate([coefficients for coefficients, _ in scales])[:, None] * like
-    mixture = np.add.reduceat(weighted, np.cumsum([0] + counts[:-1]), axis=0)
-    return np.minimum(1.0, mixture / np.array([mode for _, mode in scales])[:, None])
+    sums = np.add.reduceat(weighted, np.cumsum([0] + counts[:-1]), axis=0)
+    return np.minimum(1.0, sums / np.array([mode for _, mode in scales])[:, None])
 
 
 @functools.lru_cache(maxsize=1024)
