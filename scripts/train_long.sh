@@ -7,9 +7,9 @@
 # From the checkout's root; $CONFIGS (default src/gldt_core/configs/train) holds the configs.
 # Each run resumes checkpoints/CONFIG/last.pt (or starts afresh where there is none), trains on
 # one thread into runs/CONFIG until its next epoch would end past SECONDS, and then copies its
-# last.pt back to checkpoints/CONFIG/; commit those. Runs go side by side, one core each; start it
-# in the background (nohup ... &) and work beside it. Stopped early (kill), a run loses only the
-# epoch in progress: runs/CONFIG/last.pt holds the last whole one, to copy back by hand.
+# last.pt and log.csv back to checkpoints/CONFIG/; commit those. Runs go side by side, one core
+# each; start it in the background (nohup ... &) and work beside it. Stopped early (kill), a run
+# loses only the epoch in progress: runs/CONFIG/ holds the last whole one, to copy back by hand.
 set -euo pipefail
 seconds=${1:?usage: scripts/train_long.sh SECONDS [CONFIG ...]}
 shift
@@ -36,7 +36,7 @@ for i in "${!pids[@]}"; do
     name=${configs[$i]}
     if wait "${pids[$i]}"; then
         mkdir -p "checkpoints/$name"
-        cp "runs/$name/last.pt" "checkpoints/$name/last.pt"
+        cp "runs/$name/last.pt" "runs/$name/log.csv" "checkpoints/$name/"
         echo "train_long: $name: $(grep -E 'epoch [0-9]+:' "runs/$name/stdout.txt" | tail -1)"
     else
         echo "train_long: $name failed; see runs/$name/stdout.txt" >&2

@@ -8,6 +8,7 @@ every phase on synthetic scenes and resume a committed checkpoint.
 
 from __future__ import annotations
 
+import csv
 import os
 import subprocess
 import sys
@@ -130,3 +131,6 @@ def test_the_long_run_script_resumes_a_committed_checkpoint_and_puts_it_back(tmp
     assert "--resume checkpoints/local_wide_long/last.pt" in done.stdout
     checkpoint = torch.load(committed, map_location="cpu", weights_only=False)
     assert checkpoint["epoch"] == 3, "the committed checkpoint is the run's state after this session"
+    with (committed.parent / "log.csv").open() as fh:
+        epochs = [int(row["epoch"]) for row in csv.DictReader(fh)]
+    assert epochs == [1, 2, 3], "the committed log is the whole run's, epoch by epoch"
