@@ -34,13 +34,13 @@ def make() -> JPTrack:
 
 
 def test_an_object_back_far_from_its_lost_track_is_measured_where_it_came_back() -> None:
-    gt, dets = stream(jump_y=200.0)
+    gt, dets = stream(jump_y=400.0)  # beyond the relink's recovery radius (about 360 px here)
     [found] = return_positions(gt, dets, FPS, make, "jump")
     # The new id's first row is its first or second detection after the gap (output once confirmed).
     assert found.held and GAP[-1] + 1 <= found.frame <= GAP[-1] + 2
     assert found.lost_s == pytest.approx((found.frame - (GAP[0] - 1)) / FPS)  # since its last detection
-    # The Kalman prediction went on along the line: the object is about 200 px (10 sizes) off it.
-    assert 9.0 < found.sizes < 11.5
+    # The Kalman prediction went on along the line: the object is about 400 px (20 sizes) off it.
+    assert 19.0 < found.sizes < 21.5
     assert found.sigmas > 1.0 and found.p_final < JPTrackConfig().tau_t
 
 
@@ -50,7 +50,7 @@ def test_an_object_back_where_its_track_expected_it_keeps_its_id_and_gives_no_re
 
 
 def test_the_summary_counts_the_returns_past_the_gate() -> None:
-    gt, dets = stream(jump_y=200.0)
+    gt, dets = stream(jump_y=400.0)
     lines = summary_lines("jump", return_positions(gt, dets, FPS, make), tau_t=0.6)
     assert lines[0] == "jump: 1 births after a gap; previous track still held in 1"
     assert lines[-1].endswith("above tau_t 0.6: 0 of 1")

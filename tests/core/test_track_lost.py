@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from gldt_core.track import ByteTrack, JPTrack
+from gldt_core.track import ByteTrack, JPTrack, JPTrackConfig
 from gldt_core.track.jptrack import PMR_SETTLING_HITS, settled_history
 
 
@@ -49,3 +49,60 @@ def test_settled_history_drops_the_first_three_updates_only_while_they_are_in_th
     assert np.array_equal(settled_history(old), old.history_array())
     newborn = track_after(2)
     assert len(settled_history(newborn)) == 1  # never empty: the newest sample stays
+
+
+def shown_after_return(config: JPTrackConfig, offset: float) -> list[int]:
+    """Ids shown for a target seen 20 frames, hidden 1.5 s (45 frames at 30 Hz), then back
+    ``offset`` px off its straight path."""
+    tr = JPTrack(config)
+    shown = []
+    for frame in range(20 + 45 + 5):
+        x, y = 100 + 5.0 * frame, 200 + (offset if frame >= 65 else 0.0)
+        seen = not 20 <= frame < 65
+        out = tr.update(np.array([[x, y, x + 10, y + 10, 0.9]]) if seen else None, frame / 30)
+        if frame >= 65:
+            shown += out[:, 4].astype(int).tolist()
+    return shown
+
+
+def test_a_lost_track_takes_over_a_tentative_track_seen_where_it_would_be() -> None:
+    """120 px off after 1.5 s: beyond stage 3's tau_t, within the recovery radius (about 400 px
+    here) at both sightings. The returning target keeps its id from its second sighting on; its
+    first is not shown either way (a tentative track)."""
+    assert shown_after_return(JPTrackConfig(pmr_relink=False), 120.0) == [2, 2, 2, 2]  # off: a new id
+    assert shown_after_return(JPTrackConfig(), 120.0) == [1, 1, 1, 1]
+
+
+def test_relink_leaves_a_target_beyond_every_recovery_radius_a_new_id() -> None:
+    assert shown_after_return(JPTrackConfig(), 600.0) == [2, 2, 2, 2]
+
+
+def test_relink_prefers_the_track_lost_two_frames_ago_to_an_old_wide_hypothesis() -> None:
+    """Target 1 vanished 2 s ago, 400 px away (a wide PMR mixture); target 2 is missed for two
+    frames and comes back 40 px ahead, beyond JCMA's gate. Both gates hold, and the likelihood of
+    the two sightings (not P_final, relative to each mixture's own mode) gives it to target 2."""
+    tr = JPTrack()
+    shown = []
+    for frame in range(90):
+        rows = []
+        if frame < 20:
+            rows.append([100 + 5.0 * frame, 200, 110 + 5.0 * frame, 210, 0.9])
+        if frame >= 40 and not 78 < frame <= 80:
+            x = 700 + 5.0 * (frame - 40) + (40.0 if frame > 80 else 0.0)
+            rows.append([x, 300, x + 10, 310, 0.9])
+        out = tr.update(np.array(rows) if rows else None, frame / 30)
+        if frame > 80:
+            shown += out[:, 4].astype(int).tolist()
+    assert shown and set(shown) == {2}, shown
+
+
+def test_relink_never_hands_a_lost_track_to_a_target_seen_while_it_was_still_seen() -> None:
+    """A newcomer first seen 8 px from the target, in the frame of the target's last detection,
+    is another object, however well the target's model explains both of its sightings: at 5 Hz
+    it is confirmed under its own id the frame the target is missed."""
+    tr = JPTrack(JPTrackConfig())
+    for frame in range(12):
+        tr.update(np.array([[100.0 + 5 * frame, 200, 110 + 5 * frame, 210, 0.9]]), frame / 5)
+    tr.update(np.array([[160.0, 200, 170, 210, 0.9], [160.0, 208, 170, 218, 0.9]]), 12 / 5)
+    out = tr.update(np.array([[165.0, 225, 175, 235, 0.9]]), 13 / 5)
+    assert out[:, 4].astype(int).tolist() == [2]

@@ -8,7 +8,8 @@ and in JPTrack's third, PMR stage, so both run this loop:
    unmatched become LOST;
 3. (JPTrack with PMR) lost tracks vs the remaining detections by :mod:`.pmr`;
 4. tentative (one-hit) tracks vs the remaining high-score detections; unmatched tentative tracks
-   are dropped (ByteTrack's "unconfirmed" step);
+   are dropped (ByteTrack's "unconfirmed" step); (JPTrack) before one is confirmed, a lost track
+   whose PMR model explains both of its sightings takes it over (``_relink``);
 5. remaining high-score detections with ``score >= new_track_thresh`` start tentative tracks,
    low-score ones are dropped; lost tracks older than their memory are removed.
 6. (optional, ``low_score_birth_frames`` = K > 0) a remaining low-score detection that has
@@ -215,7 +216,17 @@ class MultiStageTracker:
 
         # Tentative tracks vs the remaining high-score detections (ByteTrack's unconfirmed step).
         cost, allowed, limit = self._pair_cost(self.STAGE_TENTATIVE, tentative, dets, rest_high, t)
-        dead_tentative, rest_high = apply(tentative, rest_high, assign(cost, allowed, limit), TrackState.CONFIRMED)
+        confirming = assign(cost, allowed, limit)
+        relinked: list[int] = []
+        if confirming:
+            # (JPTrack) a lost track may take over a tentative track on its second sighting: that
+            # detection is the lost track's, and the tentative track dies unmatched.
+            taken = self._relink([(tentative[r], int(rest_high[c])) for r, c in confirming], dets, t, rel, updated)
+            relinked = [int(rest_high[confirming[i][1]]) for i in taken]
+            confirming = [pair for i, pair in enumerate(confirming) if i not in taken]
+        dead_tentative, rest_high = apply(tentative, rest_high, confirming, TrackState.CONFIRMED)
+        if relinked:
+            rest_high = rest_high[~np.isin(rest_high, relinked)]
         dead_ids = {id(tr) for tr in dead_tentative}
 
         # New tracks from the remaining confident detections.
@@ -271,6 +282,19 @@ class MultiStageTracker:
     ) -> tuple[np.ndarray, np.ndarray]:
         """Stage 3; the default (ByteTrack) recovers nothing."""
         return rest_high, rest_low
+
+    def _relink(
+        self,
+        confirming: list[tuple[Track, int]],
+        dets: np.ndarray,
+        t: float,
+        rel: list[tuple[float, float]],
+        updated: set[int],
+    ) -> set[int]:
+        """Between stages 4 and 5: ``confirming`` are the tentative tracks about to be confirmed,
+        each with its second detection. Returns the indices of those a lost track took over (the
+        lost track updated with that detection); the default (ByteTrack) takes none."""
+        return set()
 
     # --- helpers ----------------------------------------------------------------------------
     def _start_track(

@@ -23,6 +23,15 @@ Table I value is a config field with the paper's default. What the paper leaves 
   reads 0, 1.0 and 2.5 px/frame on its first three), and extrapolated to the loss time those
   samples sit far behind the target. With them in, a target seen for 6-8 frames and hidden for
   a second came back under a new id.
+* PMR's ``tau_t`` gate is strict (P_final > 0.6 accepts a return within about a sigma), and a
+  small target that manoeuvres through a miss burst comes back several sigmas off: under a new id.
+  So before a one-hit tentative track is confirmed, ``_relink`` asks whether a lost track would
+  have been where both of its sightings are (within :func:`recovery_radius`, the pre-gate of
+  stage 3) and, if so, hands the lost track that detection: the new id is never shown. Candidate
+  pairs are chosen by the likelihood of both sightings under each lost track's PMR mixture, so a
+  track lost a frame ago outranks a wide hypothesis lost for seconds. Two sightings where one
+  was expected is the evidence a single detection cannot give (``pmr_relink``; measured in
+  docs/experiment-log.md, Tracking, 2026-12-05).
 * ``pmr_vel_std`` (2 px per reference frame) is the unmodelled velocity change allowed during an
   occlusion: on the benchmark's real drone clips a tighter gate recovered too few tracks after
   1-2 s bursts of misses, while wider gates start to pick clutter (docs/experiment-log.md).
@@ -43,7 +52,7 @@ from gldt_core.track.boxes import midpoint
 from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
 from gldt_core.track.kalman import KalmanModel
-from gldt_core.track.pmr import c_time, fit_pmr, floor_variance, p_match_many
+from gldt_core.track.pmr import PmrModel, c_time, fit_pmr, floor_variance, mode_density, p_match_many
 from gldt_core.track.state import Track, TrackState, box_row, update_tracks
 
 #: History samples from a track's first this-many updates are not used by PMR (module docstring).
@@ -91,6 +100,9 @@ class JPTrackConfig:
     pmr_use_low: bool = True
     pmr_memory_s: float = 3.0
     pmr_min_lost_s: float = 0.1
+    # A lost track takes over a tentative track seen where it would be at both sightings, so that
+    # a target missed for longer than PMR's gate forgives comes back under its id (module docstring).
+    pmr_relink: bool = True
     pmr_backend: str = "numpy"  # "numpy" (same EM as scikit-learn, faster) or "sklearn"
     # Shared.
     lost_window_s: float = 1.0
@@ -252,17 +264,10 @@ class JPTrack(MultiStageTracker):
             rows = [i for i, w in zip(long_lost, worth) if w]
         if not rows and c.tau_t >= 0.0:
             return rest_high, rest_low  # every score is 0, nothing can pass the gate
-        models = []
-        for i in rows:
-            tr = lost[i]
-            if tr.pmr_model is None:
-                tr.pmr_model = fit_pmr(settled_history(tr), tr.last_update_t, c.gamma, c.ref_fps, backend=c.pmr_backend)
-                self.pmr_fits += 1
-            models.append(tr.pmr_model)
+        models = self._pmr_models([lost[i] for i in rows])
         score = np.zeros((len(lost), len(cand)))
         if rows:
-            p = p_match_many(models, centres, t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std)
-            final = p * np.array([c_time(m, t, c.gamma) for m in models])[:, None]
+            final = self._p_final(models, centres, t)
             if c.tau_t >= 0.0 and not (final > c.tau_t).any():
                 return rest_high, rest_low  # no candidate passes the gate (most frames)
             score[rows] = final
@@ -281,6 +286,89 @@ class JPTrack(MultiStageTracker):
         keep_low = np.asarray([d for d in rest_low if d not in used], dtype=np.int64)
         return keep_high, keep_low
 
+    def _relink(
+        self,
+        confirming: list[tuple[Track, int]],
+        dets: np.ndarray,
+        t: float,
+        rel: list[tuple[float, float]],
+        updated: set[int],
+    ) -> set[int]:
+        """A tentative track about to be confirmed is a lost target back when both of its
+        sightings (its first detection and the confirming one) lie within
+        :func:`recovery_radius` of the lost track's prediction at their times. The lost track
+        then takes the confirming detection, keeps its id and is RECOVERED; the tentative track's
+        new id is never shown. Every lost track competes, the recently lost ones (within
+        ``pmr_min_lost_s``) included, but only one lost before the first sighting; pairs are
+        chosen jointly by the likelihood of both sightings under each lost track's PMR mixture
+        (its density, not P_final: P_final is relative to each mixture's own mode and would prefer
+        the widest, longest-lost hypothesis to a track lost a frame ago)."""
+        c = self.config
+        if not c.use_pmr or not c.pmr_relink:
+            return set()
+        lost = [tr for tr in self._tracks if tr.state is TrackState.LOST and id(tr) not in updated]
+        if not lost:
+            return set()
+        second = midpoint(dets[[d for _, d in confirming], :2], dets[[d for _, d in confirming], 2:4])
+        allowed = self._near_prediction(lost, second, t)
+        lost_t = np.array([tr.last_update_t for tr in lost])
+        first_ts = np.array([tent.last_update_t for tent, _ in confirming])
+        allowed &= lost_t[:, None] < first_ts[None, :]
+        for first_t in set(first_ts[allowed.any(axis=0)].tolist()):
+            cols = (first_ts == first_t).nonzero()[0]
+            first = np.array([confirming[i][0].last_obs_xy for i in cols], dtype=np.float64)
+            allowed[:, cols] &= self._near_prediction(lost, first, first_t)
+        keep = np.flatnonzero(allowed.any(axis=1))
+        if len(keep) == 0:
+            return set()
+        lost = [lost[i] for i in keep]
+        allowed = allowed[keep]
+        models = self._pmr_models(lost)
+        cost = self._negative_log_density(models, second, t)
+        for first_t in set(first_ts.tolist()):
+            cols = (first_ts == first_t).nonzero()[0]
+            first = np.array([confirming[i][0].last_obs_xy for i in cols], dtype=np.float64)
+            cost[:, cols] += self._negative_log_density(models, first, first_t)
+        allowed &= np.isfinite(cost)
+        if not allowed.any():
+            return set()
+        pairs = assign(cost, allowed, float(cost[allowed].max()) + 1.0)
+        back = [lost[r] for r, _ in pairs]
+        used = [confirming[col][1] for _, col in pairs]
+        update_tracks(back, dets[used, :4], dets[used, 4], t, [rel[d] for d in used])
+        for tr in back:
+            tr.state = TrackState.RECOVERED
+            updated.add(id(tr))
+        return {col for _, col in pairs}
+
+    def _negative_log_density(self, models: list[PmrModel], centres: np.ndarray, t: float) -> np.ndarray:
+        """``-log(P_final * mode density)`` of each model (row) at each centre (column) at ``t``:
+        the time-weighted mixture density, without the common ``1 / 2 pi``."""
+        c = self.config
+        density = (
+            self._p_final(models, centres, t)
+            * mode_density(models, t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std)[:, None]
+        )
+        with np.errstate(divide="ignore"):
+            return -np.log(density)  # inf where the density underflows
+
+    def _pmr_models(self, tracks: list[Track]) -> list[PmrModel]:
+        """Each lost track's PMR mixture, fitted on first use and kept until the track is updated."""
+        c = self.config
+        models = []
+        for tr in tracks:
+            if tr.pmr_model is None:
+                tr.pmr_model = fit_pmr(settled_history(tr), tr.last_update_t, c.gamma, c.ref_fps, backend=c.pmr_backend)
+                self.pmr_fits += 1
+            models.append(tr.pmr_model)
+        return models
+
+    def _p_final(self, models: list[PmrModel], centres: np.ndarray, t: float) -> np.ndarray:
+        """Eq. 22, ``P_match * C_time``, of each model (row) for each detection centre (column) at ``t``."""
+        c = self.config
+        p = p_match_many(models, centres, t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std)
+        return p * np.array([c_time(m, t, c.gamma) for m in models])[:, None]
+
     def _worth_modelling(self, lost: list[Track], centres: np.ndarray, t: float) -> list[bool]:
         """Cheap pre-gate, one boolean per lost track: fit/evaluate a mixture only if some candidate
         centre lies within :func:`recovery_radius` of the track's Kalman prediction. P_final > tau_t
@@ -293,15 +381,27 @@ class JPTrack(MultiStageTracker):
             worth = []
             for tr in lost:
                 cx, cy, w, h, vx, vy = tr.kf.mean[:6].tolist()
+                ahead = t - tr.kf_t  # 0 in a frame's update: the filters are advanced to it
+                cx, cy = cx + vx * ahead, cy + vy * ahead
                 steps = (t - tr.last_update_t) * c.ref_fps
                 radius = recovery_radius(FLOATS, w, h, vx, vy, steps, c)
                 worth.append(any(squared_distance(x, y, cx, cy) <= radius * radius for x, y in points))
             return worth
+        return np.any(self._near_prediction(lost, centres, t), axis=1).tolist()
+
+    def _near_prediction(self, lost: list[Track], centres: np.ndarray, t: float) -> np.ndarray:
+        """``(len(lost), len(centres))``: whether each centre, seen at ``t``, lies within
+        :func:`recovery_radius` of each lost track's Kalman prediction for ``t`` (the filter's
+        constant-velocity path, also for a ``t`` before the filter's own time)."""
+        c = self.config
         means = np.array([tr.kf.mean[:6] for tr in lost])
+        ahead = t - np.array([tr.kf_t for tr in lost])
+        x = means[:, 0] + means[:, 4] * ahead
+        y = means[:, 1] + means[:, 5] * ahead
         since_loss = (t - np.array([tr.last_update_t for tr in lost])) * c.ref_fps
         radii = recovery_radius(ARRAYS, means[:, 2], means[:, 3], means[:, 4], means[:, 5], since_loss, c)
-        d2 = squared_distance(centres[None, :, 0], centres[None, :, 1], means[:, 0, None], means[:, 1, None])
-        return np.any(d2 <= (radii * radii)[:, None], axis=1).tolist()
+        d2 = squared_distance(centres[None, :, 0], centres[None, :, 1], x[:, None], y[:, None])
+        return d2 <= (radii * radii)[:, None]
 
 
 def recovery_radius(ops: Ops[V], w: V, h: V, vx: V, vy: V, steps: V | float, c: JPTrackConfig) -> V:

@@ -264,8 +264,7 @@ def p_match_many(
     if not models:
         return np.zeros((0, len(centers)))
     counts = [len(m.weights) for m in models]
-    steps_m = [max(t - m.t_loss, 0.0) * ref_fps for m in models]
-    floor_m = [floor_variance(m.size, st, pos_std_size, vel_std) for m, st in zip(models, steps_m)]
+    steps_m, floor_m = _propagation(models, t, ref_fps, pos_std_size, vel_std)
     scales = [mixture_scale(m, st, fl) for m, st, fl in zip(models, steps_m, floor_m)]
     if on_floats(sum(counts) * len(centers)):
         points = centers.tolist()
@@ -292,6 +291,24 @@ def p_match_many(
     weighted = np.concatenate([coefficients for coefficients, _ in scales])[:, None] * like
     sums = np.add.reduceat(weighted, np.cumsum([0] + counts[:-1]), axis=0)
     return np.minimum(1.0, sums / np.array([mode for _, mode in scales])[:, None])
+
+
+def mode_density(models: list[PmrModel], t: float, ref_fps: float, pos_std_size: float, vel_std: float) -> np.ndarray:
+    """Each propagated mixture's highest position density at ``t`` (its value at the likelier
+    component's mean, without the common ``1 / 2 pi``): ``P_match * mode_density`` is the
+    mixture's density at a point, which compares hypotheses of different spread (a track lost a
+    frame ago against one lost for seconds) where ``P_match``, relative to each one's own mode,
+    does not."""
+    steps_m, floor_m = _propagation(models, t, ref_fps, pos_std_size, vel_std)
+    return np.array([mixture_scale(m, st, fl)[1] for m, st, fl in zip(models, steps_m, floor_m)])
+
+
+def _propagation(
+    models: list[PmrModel], t: float, ref_fps: float, pos_std_size: float, vel_std: float
+) -> tuple[list[float], list[float]]:
+    """Each model's reference frames since its loss at ``t`` and the floor variance for them."""
+    steps_m = [max(t - m.t_loss, 0.0) * ref_fps for m in models]
+    return steps_m, [floor_variance(m.size, st, pos_std_size, vel_std) for m, st in zip(models, steps_m)]
 
 
 @functools.lru_cache(maxsize=1024)
