@@ -8,6 +8,8 @@ on arrays is tests/core/test_track_small_pools.py.)
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import pytest
 
@@ -15,15 +17,15 @@ from gldt_core.track import Track, TrackState
 from gldt_core.track.boxes import iou_pairs_above, iou_xyxy
 from gldt_core.track.jcma import relational_cost
 from gldt_core.track.kalman import ConstantVelocityKalman, predict_many
-from gldt_core.track.pmr import PmrModel, _init_indices, fit_pmr, p_match, p_match_many
+from gldt_core.track.pmr import PmrModel, _init_indices, fit_pmr, mode_density, p_match, p_match_many
 from gldt_core.track.state import boxes_xyxy
 
 
-def reference_p_match(
-    model: PmrModel, centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float, vel_std: float
-) -> np.ndarray:
-    """PMR's P_match with the propagation written as matrices (A m, A C A^T): the mixture's
-    density relative to its highest value at a component's mean, at most 1."""
+def reference_density(
+    model: PmrModel, t: float, ref_fps: float, pos_std_size: float, vel_std: float
+) -> tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]:
+    """PMR's propagated position mixture with the propagation written as matrices (A m, A C A^T):
+    its density function over ``(D, 2)`` points, and its components' means."""
     steps = max(t - model.t_loss, 0.0) * ref_fps
     a = np.zeros((2, 4))
     a[0, 0] = a[1, 1] = 1.0
@@ -42,6 +44,15 @@ def reference_p_match(
             out += w * np.exp(-0.5 * d2) / (2.0 * np.pi * np.sqrt(np.linalg.det(c)))
         return out
 
+    return density, mu
+
+
+def reference_p_match(
+    model: PmrModel, centers: np.ndarray, t: float, ref_fps: float, pos_std_size: float, vel_std: float
+) -> np.ndarray:
+    """PMR's P_match: the mixture's density relative to its highest value at a component's
+    mean, at most 1."""
+    density, mu = reference_density(model, t, ref_fps, pos_std_size, vel_std)
     return np.minimum(1.0, density(centers) / density(mu).max())
 
 
@@ -69,6 +80,23 @@ def test_batched_p_match_equals_each_model_alone() -> None:
     for row, model in zip(batched, models):
         np.testing.assert_allclose(row, reference_p_match(model, centres, t, 30.0, 0.5, 2.0), rtol=1e-10, atol=1e-12)
     assert p_match_many([], centres, t, 30.0, 0.5, 2.0).shape == (0, 7)
+
+
+def test_mode_density_is_the_mixtures_highest_density_at_a_mean() -> None:
+    """``P_match * mode_density`` is the density itself (without ``1 / 2 pi``): what JPTrack's
+    relink compares across lost tracks of different spread."""
+    models = [fit_pmr(history(n, s), n / 30.0, 0.1, 30.0) for n, s in [(30, 1), (4, 2), (12, 3)]]
+    centres = np.random.default_rng(1).uniform(150, 450, (5, 2))
+    modes = mode_density(models, 1.4, 30.0, 0.5, 2.0)
+    for model, mode in zip(models, modes):
+        density, mu = reference_density(model, 1.4, 30.0, 0.5, 2.0)
+        assert mode / (2.0 * np.pi) == pytest.approx(density(mu).max(), rel=1e-10)
+        unclipped = density(centres) <= density(mu).max()
+        np.testing.assert_allclose(
+            (p_match(model, centres, 1.4, 30.0, 0.5, 2.0) * mode / (2.0 * np.pi))[unclipped],
+            density(centres)[unclipped],
+            rtol=1e-9,
+        )
 
 
 def test_single_model_path_equals_the_stacked_path() -> None:

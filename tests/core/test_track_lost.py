@@ -100,7 +100,7 @@ def test_relink_never_hands_a_lost_track_to_a_target_seen_while_it_was_still_see
     """A newcomer first seen 8 px from the target, in the frame of the target's last detection,
     is another object, however well the target's model explains both of its sightings: at 5 Hz
     it is confirmed under its own id the frame the target is missed."""
-    tr = JPTrack(JPTrackConfig())
+    tr = JPTrack()
     for frame in range(12):
         tr.update(np.array([[100.0 + 5 * frame, 200, 110 + 5 * frame, 210, 0.9]]), frame / 5)
     tr.update(np.array([[160.0, 200, 170, 210, 0.9], [160.0, 208, 170, 218, 0.9]]), 12 / 5)

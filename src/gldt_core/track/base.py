@@ -9,7 +9,7 @@ and in JPTrack's third, PMR stage, so both run this loop:
 3. (JPTrack with PMR) lost tracks vs the remaining detections by :mod:`.pmr`;
 4. tentative (one-hit) tracks vs the remaining high-score detections; unmatched tentative tracks
    are dropped (ByteTrack's "unconfirmed" step); (JPTrack) before one is confirmed, a lost track
-   whose PMR model explains both of its sightings takes it over (``_relink``);
+   that would have been where both of its sightings are takes it over (``_relink``);
 5. remaining high-score detections with ``score >= new_track_thresh`` start tentative tracks,
    low-score ones are dropped; lost tracks older than their memory are removed.
 6. (optional, ``low_score_birth_frames`` = K > 0) a remaining low-score detection that has
