@@ -4,20 +4,18 @@ into it and record its outputs.
 Like a launch file, it starts the nodes of the graph (:data:`gldt_ros.interface.graph.NODES`) in
 processes placed by ``--processes`` (:data:`gldt_ros.interface.graph.PROCESS_LAYOUTS`): by default
 the nodes a LOCAL frame passes through share one process and the global detector has its own;
-``--processes one-process`` puts all five in one, ``--processes per-node`` gives each node its
-own; ``--in-process`` runs all of them in this
-process's executor, which is handy for debugging and profiling. With ``--bag`` it plays the
-bag's camera, camera_info and ground-truth topics into the graph, either at the bag's pace
-times ``--rate`` or in ``--lockstep``: frame t+1 is only published after ``/gldt/tracks`` has
-answered frame t, which makes a replay deterministic (:class:`gldt_ros.launcher.replay.GraphDriver`
-plays and records).
-``--record OUT.mcap`` writes every output topic, with its type, to an MCAP file. The run ends at
-the bag's end or on Ctrl-C, and the child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if
-they hang). While the graph runs, a node that dies is restarted (:class:`NodeProcesses`), and so is
-one that stops answering: silent on ``/diagnostics`` for 1.5 s, it is killed and restarted
-(:mod:`gldt_ros.launcher.heartbeat`). Every child
-dies with ``pipeline``: a ``kill -9`` of it sends them SIGTERM (Linux parent-death signal,
-:func:`spawn`), and the recording keeps everything up to the last second
+``--processes one-process`` puts all five in one, ``--processes per-node`` gives each node its own;
+``--in-process`` runs all of them in this process's executor, which is handy for debugging and
+profiling. With ``--bag`` it plays the bag's camera, camera_info and ground-truth topics into the
+graph, either at the bag's pace times ``--rate`` or in ``--lockstep``: frame t+1 is only published
+after ``/gldt/tracks`` has answered frame t, which makes a replay deterministic
+(:class:`gldt_ros.launcher.replay.GraphDriver` plays and records). ``--record OUT.mcap`` writes
+every output topic, with its type, to an MCAP file. The run ends at the bag's end or on Ctrl-C, and
+the child nodes are stopped with SIGINT (then SIGTERM/SIGKILL if they hang). While the graph runs,
+a node that dies is restarted (:class:`NodeProcesses`), and so is one that stops answering: silent
+on ``/diagnostics`` for 1.5 s, it is killed and restarted (:mod:`gldt_ros.launcher.heartbeat`).
+Every child dies with ``pipeline``: a ``kill -9`` of it sends them SIGTERM (Linux parent-death
+signal, :func:`spawn`), and the recording keeps everything up to the last second
 (:class:`gldt_core.io.mcap_file.McapWriter`).
 
 The player restamps the bag's frames to the time the replay starts (``--keep-bag-stamps`` keeps
