@@ -58,20 +58,20 @@ class _Watch:
         return self.tracker.update(dets, t)
 
     def _where(self, previous_id: int, x: float, y: float, size: float, t: float, frame: int) -> ReturnPosition:
-        from gldt_core.track.jptrack import settled_history
-        from gldt_core.track.pmr import c_time, fit_pmr, floor_variance, p_match_many
+        from gldt_core.track.pmr import floor_variance
 
         c = self.tracker.config
         held = [track for track in self.tracker.tracks if track.track_id == previous_id]
         if not held:
             return ReturnPosition(self.sequence, frame, held=False)
         track = held[0]
-        cx, cy, w, h = (float(v) for v in track.kf.mean[:4])
+        # The filter is still at the previous frame (this runs before the update): predict to t.
+        cx, cy, w, h, vx, vy = (float(v) for v in track.kf.mean[:6])
+        ahead = t - track.kf_t
+        cx, cy = cx + vx * ahead, cy + vy * ahead
         steps = (t - track.last_update_t) * c.ref_fps
         sigma = float(np.sqrt(floor_variance(0.5 * (w + h), steps, c.pmr_pos_std_size, c.pmr_vel_std)))
         distance = float(np.hypot(x - cx, y - cy))
-        model = track.pmr_model or fit_pmr(settled_history(track), track.last_update_t, c.gamma, c.ref_fps)
-        p_match = p_match_many([model], np.array([[x, y]]), t, c.ref_fps, c.pmr_pos_std_size, c.pmr_vel_std)
         return ReturnPosition(
             self.sequence,
             frame,
@@ -79,7 +79,7 @@ class _Watch:
             lost_s=t - track.last_update_t,
             sigmas=distance / max(sigma, 1e-9),
             sizes=distance / max(size, 1e-9),
-            p_final=float(p_match[0, 0]) * float(c_time(model, t, c.gamma)),
+            p_final=float(self.tracker.lost_track_p_final(track, np.array([[x, y]]), t)[0]),
         )
 
 

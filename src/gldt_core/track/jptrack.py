@@ -363,6 +363,15 @@ class JPTrack(MultiStageTracker):
             models.append(tr.pmr_model)
         return models
 
+    def lost_track_p_final(self, track: Track, centres: np.ndarray, t: float) -> np.ndarray:
+        """PMR's P_final (eq. 22) of the lost ``track`` for detection centres ``(D, 2)`` at ``t``, as
+        stage 3 scores them; fits the track's mixture if it has none yet, without keeping it."""
+        c = self.config
+        model = track.pmr_model or fit_pmr(
+            settled_history(track), track.last_update_t, c.gamma, c.ref_fps, backend=c.pmr_backend
+        )
+        return self._p_final([model], np.asarray(centres, dtype=np.float64).reshape(-1, 2), t)[0]
+
     def _p_final(self, models: list[PmrModel], centres: np.ndarray, t: float) -> np.ndarray:
         """Eq. 22, ``P_match * C_time``, of each model (row) for each detection centre (column) at ``t``."""
         c = self.config

@@ -9,7 +9,7 @@ Once it has answered a pair, the buffer sends the next one without its previous 
 frame kept here); should that frame be gone (this node restarted in between), the current frame is
 paired with itself, as on a stream's first frame, and a warning says so.
 
-The model runs on a thread of its own (:class:`gldt_ros.runtime.worker.NewestFirstWorker`), and the
+The model runs on a thread of its own (:class:`gldt_ros.runtime.worker.KeepNewestWorker`), and the
 detections are published from the thread that spins the node: in a process it shares with other
 nodes (``pipeline --processes one-process``) they keep answering frames while it works, as they
 would with the detector in another process.
@@ -33,7 +33,7 @@ from gldt_ros.interface.convert import detections_to_msgs, image_to_bgr
 from gldt_ros.interface.graph import WARM_UP_FRAME_ID
 from gldt_ros.interface.params import detector_kwargs, parse_classes
 from gldt_ros.runtime.node_base import GldtNode, run_node
-from gldt_ros.runtime.worker import NewestFirstWorker
+from gldt_ros.runtime.worker import KeepNewestWorker
 
 #: Blank pairs run before the node reports ready (:meth:`GlobalDetectorNode.warm_up`): the first
 #: computes the previous frame's features too, the second reuses them, as in a GD stretch.
@@ -53,7 +53,7 @@ class GlobalDetectorNode(GldtNode):
         self.last_pair: GlobalCarry | None = None  # the last pair's current input and its features
         self.last_pair_index: int | None = None  # and that pair's frame index
         self.warm_up()
-        self.worker: NewestFirstWorker[FramePair] = NewestFirstWorker(
+        self.worker: KeepNewestWorker[FramePair] = KeepNewestWorker(
             self.guarded(self.answer, "frame pair"),
             depth=int(self.param("pair_queue_depth")),
             on_error=self.fail_from_thread,
@@ -63,6 +63,7 @@ class GlobalDetectorNode(GldtNode):
         self.create_subscription(FramePair, topics.FRAME_PAIRS, self.worker.submit, pairs_qos)
 
     def destroy_node(self) -> None:
+        self.closing = True  # before the stop: a pair still in the model's hands is dropped, not published
         self.worker.stop()
         super().destroy_node()
 

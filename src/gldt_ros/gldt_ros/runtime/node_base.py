@@ -81,6 +81,8 @@ class GldtNode(Node):
     def __init__(self, name: str, **kwargs: Any) -> None:
         # Set before Node.__init__, which already creates publishers (rosout, parameter events).
         self._local = active_local_delivery()
+        #: Set when the node is being destroyed: work still finishing on another thread is dropped.
+        self.closing = False
         super().__init__(name, **kwargs)
         self._specs = {spec.name: spec for spec in SCHEMA[name]}
         for spec in SCHEMA[name]:
@@ -153,6 +155,7 @@ class GldtNode(Node):
         return subscription
 
     def destroy_node(self) -> None:
+        self.closing = True
         if self._local is not None:
             self._local.forget(self)
         super().destroy_node()
@@ -186,31 +189,40 @@ class GldtNode(Node):
 
     def call_on_spin_thread(self, callback: Callable[[], None]) -> None:
         """Run ``callback`` soon on the thread that spins this node; callable from any thread (a
-        :class:`gldt_ros.runtime.worker.NewestFirstWorker` hands its result back this way). It goes
+        :class:`gldt_ros.runtime.worker.KeepNewestWorker` hands its result back this way). It goes
         through the executor's task queue, which wakes the executor as a message would, and what it
         publishes is delivered as a callback's is. rclpy's events executor crashes the process when
         such a task raises, so an error that is not a stop ends the node through
-        :meth:`fail_from_thread` instead."""
+        :meth:`fail_from_thread` instead. Once the node is being destroyed (:attr:`closing`), a
+        result that arrives late (work that outlived its worker's stop) is dropped."""
+        if self.closing:
+            return
         executor = self.executor
         if executor is None:
-            raise RuntimeError(f"{self.get_name()}: call_on_spin_thread before the node is spun")
+            raise RuntimeError(f"{self.get_name()}: call_on_spin_thread on a node no executor spins")
 
         deliver = callback if self._local is None else self._local.dispatching(callback)
 
         def run() -> None:
+            if self.closing:
+                return
             try:
                 deliver()
             except BaseException as error:  # noqa: BLE001 - never out of a task (see the docstring)
                 self.fail_from_thread(error)
 
-        executor.create_task(run)
+        try:
+            executor.create_task(run)
+        except Exception:  # noqa: BLE001 - an executor shut down under the caller: nothing left to run it
+            if not self.closing and self.context.ok():
+                raise
 
     def fail_from_thread(self, error: BaseException) -> None:
         """End this node's process on an unexpected error raised off the executor's callbacks (a
         worker thread, a posted task), as an error escaping a callback would: logged with its
         traceback, exit status 1, for ``pipeline`` to restart it. A stop in progress (the context
-        shut down) is not an error and ends nothing."""
-        if not self.context.ok():
+        shut down, or the node being destroyed) is not an error and ends nothing."""
+        if self.closing or not self.context.ok():
             return
         import traceback
 

@@ -3,7 +3,7 @@
 The global detector works on a frame pair for longer than a camera frame period. In a process of
 its own that only delays its own callbacks; in a process shared with other nodes
 (:mod:`gldt_ros.runtime.node_group`) it would hold up every node of the process for as long. A
-:class:`NewestFirstWorker` takes such work off the spinning thread: the subscription callback
+:class:`KeepNewestWorker` takes such work off the spinning thread: the subscription callback
 hands the message over and returns at once, the worker runs it, and the result goes back to the
 spinning thread (:meth:`gldt_ros.runtime.node_base.GldtNode.call_on_spin_thread`) to be published
 there, in publication order with the process's other messages.
@@ -23,7 +23,7 @@ from typing import Generic, TypeVar
 Item = TypeVar("Item")
 
 
-class NewestFirstWorker(Generic[Item]):
+class KeepNewestWorker(Generic[Item]):
     """Runs ``work(item)`` on a daemon thread for the items :meth:`submit` hands it, oldest first,
     keeping at most ``depth`` waiting (module docstring). An exception escaping ``work`` ends the
     worker and goes to ``on_error`` (on the worker's thread), which must end or restart the node:
@@ -64,7 +64,9 @@ class NewestFirstWorker(Generic[Item]):
         return self._thread.is_alive()
 
     def stop(self, timeout_s: float = 1.0) -> None:
-        """Drop what waits, let the item in progress finish (for at most ``timeout_s``) and end the thread."""
+        """Drop what waits and end the thread, waiting at most ``timeout_s`` for the item in
+        progress: one that takes longer still finishes afterwards, on the daemon thread, and its
+        result must then be dropped by whoever receives it (a node that is being destroyed does)."""
         with self._ready:
             self._stopped = True
             self._waiting.clear()
