@@ -207,6 +207,18 @@ def test_the_global_detector_leaves_the_process_free_while_it_works(monkeypatch:
         rclpy.shutdown(context=context)
 
 
+def run_script(script: str) -> tuple[subprocess.CompletedProcess[str], str]:
+    """Run ``script`` in a Python process of its own, on an isolated ROS domain, with this module
+    (``blank_pair``) and the tests' support module importable: the process and its output."""
+    environment = isolated_ros_env()
+    here = Path(__file__).parent
+    environment["PYTHONPATH"] = f"{here}:{here.parent}:{environment.get('PYTHONPATH', '')}"
+    completed = subprocess.run(
+        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=environment
+    )
+    return completed, completed.stdout + completed.stderr
+
+
 def test_a_global_detector_whose_model_fails_ends_its_process_with_the_error() -> None:
     """An error off the executor's callbacks must end the node as an error in a callback would
     (exit 1, the error named), not leave a node whose heartbeat goes on without a worker."""
@@ -235,13 +247,7 @@ def test_a_global_detector_whose_model_fails_ends_its_process_with_the_error() -
         print("spin ended without the error")
         """
     )
-    environment = isolated_ros_env()
-    here = Path(__file__).parent  # this module (blank_pair) and the tests' support module
-    environment["PYTHONPATH"] = f"{here}:{here.parent}:{environment.get('PYTHONPATH', '')}"
-    completed = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=environment
-    )
-    output = completed.stdout + completed.stderr
+    completed, output = run_script(script)
     assert completed.returncode == 1, output[-3000:]
     assert "KeyError" in output and "model output 'boxes' missing" in output and "exiting" in output
     assert "spin ended" not in output
@@ -291,12 +297,6 @@ def test_a_pair_still_in_the_model_when_the_node_is_destroyed_is_dropped_quietly
         rclpy.shutdown()
         """
     )
-    environment = isolated_ros_env()
-    here = Path(__file__).parent
-    environment["PYTHONPATH"] = f"{here}:{here.parent}:{environment.get('PYTHONPATH', '')}"
-    completed = subprocess.run(
-        [sys.executable, "-c", script], capture_output=True, text=True, timeout=120, env=environment
-    )
-    output = completed.stdout + completed.stderr
+    completed, output = run_script(script)
     assert completed.returncode == 0 and "clean" in output, output[-3000:]
     assert "FATAL" not in output and "exiting" not in output, output[-3000:]
