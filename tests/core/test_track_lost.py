@@ -65,10 +65,11 @@ def shown_after_return(config: JPTrackConfig, offset: float) -> list[int]:
     return shown
 
 
-def test_a_lost_track_takes_over_a_tentative_track_seen_where_it_would_be() -> None:
+def test_a_tentative_track_seen_where_a_lost_track_would_be_continues_its_id() -> None:
     """120 px off after 1.5 s: beyond stage 3's tau_t, within the recovery radius (about 400 px
-    here) at both sightings. The returning target keeps its id from its second sighting on; its
-    first is not shown either way (a tentative track)."""
+    here) at both sightings. The returning target keeps its id from its second sighting on, and
+    keeps it (the fresh filter follows it); its first sighting is not shown either way (a
+    tentative track)."""
     assert shown_after_return(JPTrackConfig(pmr_relink=False), 120.0) == [2, 2, 2, 2]  # off: a new id
     assert shown_after_return(JPTrackConfig(), 120.0) == [1, 1, 1, 1]
 

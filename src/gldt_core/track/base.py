@@ -8,8 +8,8 @@ and in JPTrack's third, PMR stage, so both run this loop:
    unmatched become LOST;
 3. (JPTrack with PMR) lost tracks vs the remaining detections by :mod:`.pmr`;
 4. tentative (one-hit) tracks vs the remaining high-score detections; unmatched tentative tracks
-   are dropped (ByteTrack's "unconfirmed" step); (JPTrack) before one is confirmed, a lost track
-   that would have been where both of its sightings are takes it over (``_relink``);
+   are dropped (ByteTrack's "unconfirmed" step); (JPTrack) one confirmed where a lost track
+   would have been at both of its sightings continues that track's identity (``_relink``);
 5. remaining high-score detections with ``score >= new_track_thresh`` start tentative tracks,
    low-score ones are dropped; lost tracks older than their memory are removed.
 6. (optional, ``low_score_birth_frames`` = K > 0) a remaining low-score detection that has
@@ -217,17 +217,13 @@ class MultiStageTracker:
         # Tentative tracks vs the remaining high-score detections (ByteTrack's unconfirmed step).
         cost, allowed, limit = self._pair_cost(self.STAGE_TENTATIVE, tentative, dets, rest_high, t)
         confirming = assign(cost, allowed, limit)
-        relinked: list[int] = []
-        if confirming:
-            # (JPTrack) a lost track may take over a tentative track on its second sighting: that
-            # detection is the lost track's, and the tentative track dies unmatched.
-            taken = self._relink([(tentative[r], int(rest_high[c])) for r, c in confirming], dets, t, rel, updated)
-            relinked = [int(rest_high[confirming[i][1]]) for i in taken]
-            confirming = [pair for i, pair in enumerate(confirming) if i not in taken]
+        # (JPTrack) a tentative track about to be confirmed may be a lost target back: it then
+        # continues the lost track's identity with its own, fresh filter, and the lost track goes.
+        back = self._relink([(tentative[r], int(rest_high[c])) for r, c in confirming], dets, t, updated)
         dead_tentative, rest_high = apply(tentative, rest_high, confirming, TrackState.CONFIRMED)
-        if relinked:
-            rest_high = rest_high[~np.isin(rest_high, relinked)]
-        dead_ids = {id(tr) for tr in dead_tentative}
+        for newcomer, returned in back:
+            newcomer.continue_as(returned)
+        dead_ids = {id(tr) for tr in dead_tentative} | {id(returned) for _, returned in back}
 
         # New tracks from the remaining confident detections.
         for d in rest_high:
@@ -284,17 +280,13 @@ class MultiStageTracker:
         return rest_high, rest_low
 
     def _relink(
-        self,
-        confirming: list[tuple[Track, int]],
-        dets: np.ndarray,
-        t: float,
-        rel: list[tuple[float, float]],
-        updated: set[int],
-    ) -> set[int]:
+        self, confirming: list[tuple[Track, int]], dets: np.ndarray, t: float, updated: set[int]
+    ) -> list[tuple[Track, Track]]:
         """Between stages 4 and 5: ``confirming`` are the tentative tracks about to be confirmed,
-        each with its second detection. Returns the indices of those a lost track took over (the
-        lost track updated with that detection); the default (ByteTrack) takes none."""
-        return set()
+        each with its second detection. Returns ``(tentative track, lost track)`` pairs, each
+        tentative track being the lost target back (it takes over the lost track's identity);
+        the default (ByteTrack) finds none."""
+        return []
 
     # --- helpers ----------------------------------------------------------------------------
     def _start_track(

@@ -23,15 +23,15 @@ Table I value is a config field with the paper's default. What the paper leaves 
   reads 0, 1.0 and 2.5 px/frame on its first three), and extrapolated to the loss time those
   samples sit far behind the target. With them in, a target seen for 6-8 frames and hidden for
   a second came back under a new id.
-* PMR's ``tau_t`` gate is strict (P_final > 0.6 accepts a return within about a sigma), and a
-  small target that manoeuvres through a miss burst comes back several sigmas off: under a new id.
-  So before a one-hit tentative track is confirmed, ``_relink`` asks whether a lost track would
-  have been where both of its sightings are (within :func:`recovery_radius`, the pre-gate of
-  stage 3) and, if so, hands the lost track that detection: the new id is never shown. Candidate
-  pairs are chosen by the likelihood of both sightings under each lost track's PMR mixture, so a
-  track lost a frame ago outranks a wide hypothesis lost for seconds. Two sightings where one
-  was expected is the evidence a single detection cannot give (``pmr_relink``; measured in
-  docs/experiment-log.md, Tracking, 2026-12-05).
+* PMR's ``tau_t`` gate is strict (P_final > 0.6 accepts a return within about a sigma), and a small
+  target that manoeuvres through a miss burst comes back several sigmas off: under a new id. So
+  before a one-hit tentative track is confirmed, ``_relink`` asks whether a lost track would have
+  been where both of its sightings are (within :func:`recovery_radius`, the pre-gate of stage 3)
+  and, if so, the tentative track continues the lost track's identity with its own, fresh filter:
+  the new id is never shown. Candidate pairs are chosen by the likelihood of both sightings under
+  each lost track's PMR mixture, so a track lost a frame ago outranks a wide hypothesis lost for
+  seconds. Two sightings where one was expected is the evidence a single detection cannot give
+  (``pmr_relink``; measured in docs/experiment-log.md, Tracking, 2026-12-05).
 * ``pmr_vel_std`` (2 px per reference frame) is the unmodelled velocity change allowed during an
   occlusion: on the benchmark's real drone clips a tighter gate recovered too few tracks after
   1-2 s bursts of misses, while wider gates start to pick clutter (docs/experiment-log.md).
@@ -287,28 +287,25 @@ class JPTrack(MultiStageTracker):
         return keep_high, keep_low
 
     def _relink(
-        self,
-        confirming: list[tuple[Track, int]],
-        dets: np.ndarray,
-        t: float,
-        rel: list[tuple[float, float]],
-        updated: set[int],
-    ) -> set[int]:
+        self, confirming: list[tuple[Track, int]], dets: np.ndarray, t: float, updated: set[int]
+    ) -> list[tuple[Track, Track]]:
         """A tentative track about to be confirmed is a lost target back when both of its
         sightings (its first detection and the confirming one) lie within
-        :func:`recovery_radius` of the lost track's prediction at their times. The lost track
-        then takes the confirming detection, keeps its id and is RECOVERED; the tentative track's
-        new id is never shown. Every lost track competes, the recently lost ones (within
-        ``pmr_min_lost_s``) included, but only one lost before the first sighting; pairs are
-        chosen jointly by the likelihood of both sightings under each lost track's PMR mixture
-        (its density, not P_final: P_final is relative to each mixture's own mode and would prefer
-        the widest, longest-lost hypothesis to a track lost a frame ago)."""
+        :func:`recovery_radius` of the lost track's prediction at their times. It then continues
+        the lost track's identity (id, start; reported RECOVERED) with its own filter, fitted to
+        where the target is now (the lost track's, updated with one detection after the gap, kept
+        its old velocity and lost the target again at once), and the lost track is dropped; the
+        tentative track's new id is never shown. Every lost track competes, the recently lost
+        ones (within ``pmr_min_lost_s``) included, but only one lost before the first sighting;
+        pairs are chosen jointly by the likelihood of both sightings under each lost track's PMR
+        mixture (its density, not P_final: P_final is relative to each mixture's own mode and
+        would prefer the widest, longest-lost hypothesis to a track lost a frame ago)."""
         c = self.config
-        if not c.use_pmr or not c.pmr_relink:
-            return set()
+        if not confirming or not c.use_pmr or not c.pmr_relink:
+            return []
         lost = [tr for tr in self._tracks if tr.state is TrackState.LOST and id(tr) not in updated]
         if not lost:
-            return set()
+            return []
         second = midpoint(dets[[d for _, d in confirming], :2], dets[[d for _, d in confirming], 2:4])
         allowed = self._near_prediction(lost, second, t)
         lost_t = np.array([tr.last_update_t for tr in lost])
@@ -320,7 +317,7 @@ class JPTrack(MultiStageTracker):
             allowed[:, cols] &= self._near_prediction(lost, first, first_t)
         keep = np.flatnonzero(allowed.any(axis=1))
         if len(keep) == 0:
-            return set()
+            return []
         lost = [lost[i] for i in keep]
         allowed = allowed[keep]
         models = self._pmr_models(lost)
@@ -331,15 +328,9 @@ class JPTrack(MultiStageTracker):
             cost[:, cols] += self._negative_log_density(models, first, first_t)
         allowed &= np.isfinite(cost)
         if not allowed.any():
-            return set()
+            return []
         pairs = assign(cost, allowed, float(cost[allowed].max()) + 1.0)
-        back = [lost[r] for r, _ in pairs]
-        used = [confirming[col][1] for _, col in pairs]
-        update_tracks(back, dets[used, :4], dets[used, 4], t, [rel[d] for d in used])
-        for tr in back:
-            tr.state = TrackState.RECOVERED
-            updated.add(id(tr))
-        return {col for _, col in pairs}
+        return [(confirming[col][0], lost[row]) for row, col in pairs]
 
     def _negative_log_density(self, models: list[PmrModel], centres: np.ndarray, t: float) -> np.ndarray:
         """``-log(P_final * mode density)`` of each model (row) at each centre (column) at ``t``:

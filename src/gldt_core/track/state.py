@@ -71,6 +71,14 @@ class Track:
         #: Cached PMR mixture, fitted lazily once the track is lost (see pmr.py).
         self.pmr_model: PmrModel | None = None
 
+    def continue_as(self, lost: Track) -> None:
+        """Take over the identity of ``lost`` (its id and start), which this track has been found
+        to be: the target back after a gap. This track keeps its own filter and history, fitted
+        to where the target is now; it is reported as RECOVERED."""
+        self.track_id = lost.track_id
+        self.start_t = lost.start_t
+        self.state = TrackState.RECOVERED
+
     # --- public read-only view -------------------------------------------------------------
     @property
     def box_xyxy(self) -> np.ndarray:
