@@ -53,6 +53,9 @@ class GlobalDetectorNode(GldtNode):
         self.last_pair: GlobalCarry | None = None  # the last pair's current input and its features
         self.last_pair_index: int | None = None  # and that pair's frame index
         self.warm_up()
+        # guarded() counts and times each pair on the worker's thread; the diagnostics timer reads
+        # those counters on the spinning thread: single attribute updates and deque appends, each
+        # atomic under the GIL, and a status a frame late is harmless.
         self.worker: KeepNewestWorker[FramePair] = KeepNewestWorker(
             self.guarded(self.answer, "frame pair"),
             depth=int(self.param("pair_queue_depth")),
