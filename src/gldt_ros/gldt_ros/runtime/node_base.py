@@ -188,7 +188,8 @@ class GldtNode(Node):
         )
 
     def call_on_spin_thread(self, callback: Callable[[], None]) -> None:
-        """Run ``callback`` soon on the thread that spins this node; callable from any thread (a
+        """Run ``callback`` soon on the thread that spins this node (a thread of its pool, under a
+        multi-threaded executor, as any callback would run); callable from any thread (a
         :class:`gldt_ros.runtime.worker.KeepNewestWorker` hands its result back this way). It goes
         through the executor's task queue, which wakes the executor as a message would, and what it
         publishes is delivered as a callback's is. rclpy's events executor crashes the process when
