@@ -107,3 +107,88 @@ def test_relink_never_hands_a_lost_track_to_a_target_seen_while_it_was_still_see
     tr.update(np.array([[160.0, 200, 170, 210, 0.9], [160.0, 208, 170, 218, 0.9]]), 12 / 5)
     out = tr.update(np.array([[165.0, 225, 175, 235, 0.9]]), 13 / 5)
     assert out[:, 4].astype(int).tolist() == [2]
+
+
+def ids_after_return_at_size(config: JPTrackConfig, side: float) -> list[int]:
+    """Ids shown for a 10 px target seen 20 frames, hidden 1.5 s, then back on its path at
+    ``side`` px (its centre where it would be)."""
+    tr = JPTrack(config)
+    shown = []
+    for frame in range(20 + 45 + 5):
+        cx, half = 105 + 5.0 * frame, (side if frame >= 65 else 10.0) / 2
+        seen = not 20 <= frame < 65
+        out = tr.update(np.array([[cx - half, 205 - half, cx + half, 205 + half, 0.9]]) if seen else None, frame / 30)
+        if frame >= 65:
+            shown += out[:, 4].astype(int).tolist()
+    return shown
+
+
+def test_pmr_takes_back_only_a_detection_of_the_lost_tracks_size() -> None:
+    """Stage 3 alone (relink off): the target back at 15 px (x1.5) keeps its id from its first
+    frame; at 30 px (x3) it is another object to PMR and starts a new id, unless the gate is off."""
+    stage3 = JPTrackConfig(pmr_relink=False)
+    assert ids_after_return_at_size(stage3, 10.0) == [1] * 5
+    assert ids_after_return_at_size(stage3, 15.0) == [1] * 5
+    assert ids_after_return_at_size(stage3, 30.0) == [2] * 4
+    assert ids_after_return_at_size(JPTrackConfig(pmr_relink=False, pmr_size_ratio=float("inf")), 30.0) == [1] * 5
+
+
+@pytest.mark.parametrize("ratio", [0.99, float("nan"), -1.0])
+def test_a_size_ratio_below_one_is_refused(ratio: float) -> None:
+    with pytest.raises(ValueError, match="pmr_size_ratio must be >= 1"):
+        JPTrackConfig(pmr_size_ratio=ratio)
+
+
+@pytest.mark.parametrize("growth", [1.0, -0.2])
+def test_a_lost_box_coasts_at_its_last_size(growth: float) -> None:
+    """A target whose box grew (or shrank) every frame is lost: its box keeps the size it had,
+    where the size rate alone would have swollen or collapsed it over two seconds."""
+    tr = JPTrack()
+    for frame in range(30):
+        side = 20.0 + growth * frame
+        tr.update(np.array([[100.0, 100.0, 100.0 + side, 100.0 + side, 0.9]]), frame / 30)
+    (track,) = tr.tracks
+    size_at_loss = None
+    for frame in range(30, 90):
+        tr.update(None, frame / 30)
+        if size_at_loss is None:
+            size_at_loss = track.box_xyxy[2] - track.box_xyxy[0]
+    assert track.kf.state[6:8].tolist() == [0.0, 0.0]
+    assert track.box_xyxy[2] - track.box_xyxy[0] == pytest.approx(size_at_loss)
+    assert abs(size_at_loss - (20.0 + growth * 30)) < 3.0
+
+
+def relinked_id(config: JPTrackConfig, return_y: float, return_side: float) -> list[int]:
+    """Ids shown for a target back 1.5 s after two were lost together, 100 px ahead of both
+    paths (beyond stage 3's gate, within both recovery radii): a 10 px one on y = 205 (id 1) and
+    a 30 px one on y = 275 (id 2)."""
+    tr = JPTrack(config)
+    shown = []
+    for frame in range(70):
+        x = 100 + 5.0 * frame
+        if frame < 20:
+            dets = np.array([[x, 200, x + 10, 210, 0.9], [x, 260, x + 30, 290, 0.9]])
+        elif frame < 65:
+            dets = None
+        else:
+            cx, half = x + 105, return_side / 2
+            dets = np.array([[cx - half, return_y - half, cx + half, return_y + half, 0.9]])
+        out = tr.update(dets, frame / 30)
+        if frame >= 65:
+            shown += out[:, 4].astype(int).tolist()
+    return shown
+
+
+@pytest.mark.parametrize("return_y", [215.0, 225.0])
+def test_relink_tells_two_lost_tracks_apart_by_the_size_of_what_came_back(return_y: float) -> None:
+    """Nearer the small target's path, a 30 px return is the large one's; ranked by position
+    alone it went to the small one."""
+    assert relinked_id(JPTrackConfig(relink_size_std=float("inf")), return_y, 30.0) == [1] * 4
+    assert relinked_id(JPTrackConfig(), return_y, 30.0) == [2] * 4
+    assert relinked_id(JPTrackConfig(), return_y, 10.0) == [1] * 4
+
+
+@pytest.mark.parametrize("std", [0.0, float("nan"), -0.3])
+def test_a_relink_size_std_that_is_not_positive_is_refused(std: float) -> None:
+    with pytest.raises(ValueError, match="relink_size_std must be > 0"):
+        JPTrackConfig(relink_size_std=std)

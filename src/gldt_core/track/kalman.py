@@ -235,15 +235,28 @@ class ConstantVelocityKalman:
 def stop_height_velocities(filters: list[ConstantVelocityKalman]) -> None:
     """Set the height's velocity of each filter to 0: ByteTrack's reference does so for a lost
     track before each prediction, so a coasting box keeps its last size."""
-    moving = [f for f in filters if f.state[7] != 0.0]
+    stop_velocities(filters, (7,))
+
+
+def stop_size_velocities(filters: list[ConstantVelocityKalman]) -> None:
+    """Set the velocities of both box sides (state columns 6 and 7) of each filter to 0: a lost
+    box coasts at its last size instead of shrinking to nothing or swelling over seconds of
+    extrapolated noise."""
+    stop_velocities(filters, (6, 7))
+
+
+def stop_velocities(filters: list[ConstantVelocityKalman], columns: tuple[int, ...]) -> None:
+    """Set the given velocity columns (4-7) of each filter's state to 0."""
+    cols = list(columns)
+    moving = [f for f in filters if any(f.state[c] != 0.0 for c in cols)]
     if not moving:
         return
     if _same_model(moving) is None:
         for idx in _by_model(moving):
-            stop_height_velocities([moving[i] for i in idx])
+            stop_velocities([moving[i] for i in idx], columns)
         return
     states = np.array([f.state for f in moving])
-    states[:, 7] = 0.0
+    states[:, cols] = 0.0
     _set_states(moving, states, np.array([f.state_covariance for f in moving]))
 
 

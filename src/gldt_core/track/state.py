@@ -141,10 +141,10 @@ class Track:
         self.frames_since_update += 1
 
     def mark_lost(self) -> None:
-        """Lost: the box coasts with the filter's velocities, its size included. Freezing the
-        size while coasting, as ByteTrack does for the height (against size jitter collapsing a
-        coasted small box), was tried and not kept: it cost MOTA on the ablation's real clips
-        (docs/experiment-log.md, Tracking)."""
+        """Lost: the box coasts with the filter's velocities. The trackers then stop the size's
+        velocities they do not trust: ByteTrack the height's, as its reference does; JPTrack both
+        sides' (a noisy size rate swells or collapses a box coasted for seconds; see
+        :mod:`gldt_core.track.jptrack`)."""
         if self.state is not TrackState.LOST:
             self.state = TrackState.LOST
             self.lost_since_t = self.last_update_t
