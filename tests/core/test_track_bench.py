@@ -11,6 +11,7 @@ import pytest
 
 from gldt_core.bench import tracking
 from gldt_core.cli import main
+from gldt_core.eval.id_events import RECOVERY_OTHER, SWAP, IdSwitchEvent
 from gldt_core.eval.streams import PROFILES, StreamSequence
 
 
@@ -130,12 +131,32 @@ def test_quick_benchmark_reports_every_profile_tracker_and_the_worst_profile(
     if has_boxmot:
         assert any(line.startswith("[worst profile] HOTA: JPTrack") for line in payload["targets"])
         assert "BoT-SORT without ReID" in text
-    if importlib.util.find_spec("gldt_core.eval.id_events") is not None:
-        assert "identity switches by event" in text
-        events = payload["id_events"][PROFILES[0].name]["JPTrack JCMA+PMR"]
-        assert sum(events.values()) == payload["accuracy"][PROFILES[0].name]["JPTrack JCMA+PMR"]["IDSW"]
-    else:
-        assert "gldt_core.eval.id_events is not available" in text
+    assert "identity switches by event" in text
+    for name in payload["id_events"]:
+        events = payload["id_events"][name]["JPTrack JCMA+PMR"]
+        assert sum(events.values()) == payload["accuracy"][name]["JPTrack JCMA+PMR"]["IDSW"]
+        mechanisms = payload["recoveries_by_mechanism"][name].get("JPTrack JCMA+PMR", {})
+        assert sum(mechanisms.values()) in (0, events["recovery onto another target"])
     for size in ("3", "50"):
         for tracker in trackers:
             assert payload["speed"][size][tracker]["mean_ms"] > 0
+
+
+def _switch(frame: int, new_id: int, category: str) -> IdSwitchEvent:
+    return IdSwitchEvent(frame, 1, 99, new_id, category, "", frame - 5, 1, "ended at 1")
+
+
+def test_recoveries_onto_another_target_are_split_by_what_brought_the_track_back() -> None:
+    """The latest re-attachment of the new id at or before the switch decides; switches of other
+    categories are not counted; a new id never re-attached is unattributed."""
+    fps = 10.0
+    log = [(0.5, 7, "first stage"), (2.0, 7, "PMR"), (3.0, 7, "relink"), (1.0, 8, "relink")]
+    events = [
+        _switch(26, 7, RECOVERY_OTHER),  # t = 2.5: PMR at 2.0 is the latest before it
+        _switch(21, 7, RECOVERY_OTHER),  # t = 2.0 exactly: PMR
+        _switch(11, 8, RECOVERY_OTHER),  # t = 1.0: the relink at 1.0
+        _switch(40, 9, RECOVERY_OTHER),  # never re-attached
+        _switch(40, 7, SWAP),  # another category
+    ]
+    counts = tracking.recoveries_by_mechanism(events, log, fps)
+    assert counts == {"first stage": 0, "PMR": 2, "relink": 1, tracking.UNATTRIBUTED: 1}

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gldt_core.track import ByteTrack, JPTrack, JPTrackConfig
+from gldt_core.track.base import REATTACHED_FIRST_STAGE, REATTACHED_RECOVER, REATTACHED_RELINK
 from gldt_core.track.jptrack import PMR_SETTLING_HITS, settled_history
 
 
@@ -192,3 +193,24 @@ def test_relink_tells_two_lost_tracks_apart_by_the_size_of_what_came_back(return
 def test_a_relink_size_std_that_is_not_positive_is_refused(std: float) -> None:
     with pytest.raises(ValueError, match="relink_size_std must be > 0"):
         JPTrackConfig(relink_size_std=std)
+
+
+def reattachments_after_gap(gap: int, offset: float) -> list[tuple[int, int, str]]:
+    """``(frame, id, how)`` of every lost-track return for a target seen 20 frames, hidden
+    ``gap`` frames, then back ``offset`` px off its straight path."""
+    tr = JPTrack()
+    tr.reattachments = []
+    for frame in range(20 + gap + 5):
+        x, y = 100 + 5.0 * frame, 200 + (offset if frame >= 20 + gap else 0.0)
+        seen = not 20 <= frame < 20 + gap
+        tr.update(np.array([[x, y, x + 10, y + 10, 0.9]]) if seen else None, frame / 30)
+    return [(round(t * 30), track_id, how) for t, track_id, how in tr.reattachments]
+
+
+def test_each_way_back_of_a_lost_track_is_recorded_when_asked() -> None:
+    assert reattachments_after_gap(10, 0.0) == [(30, 1, REATTACHED_FIRST_STAGE)]  # within the 1 s window
+    assert reattachments_after_gap(45, 0.0) == [(65, 1, REATTACHED_RECOVER)]  # PMR, beyond it
+    assert reattachments_after_gap(45, 120.0) == [(66, 1, REATTACHED_RELINK)]  # at its second sighting
+    silent = JPTrack()
+    silent.update(np.array([[0.0, 0.0, 10.0, 10.0, 0.9]]), 0.0)
+    assert silent.reattachments is None  # recorded only when asked

@@ -34,7 +34,8 @@ The report gives, per profile, HOTA, IDF1, MOTA, IDSW, DetA, AssA, FP, FN (and M
 tracker its WORST profile (the headline, not a mean); the issue's targets per profile (JPTrack
 JCMA+PMR above ByteTrack+DIoU in HOTA and IDF1 with no more IDSW; against our ByteTrack IDSW
 <= 0.5x and IDF1 >= +10 points), each OK or MISSED; the identity switches of JPTrack JCMA+PMR
-and ByteTrack+DIoU by event (:mod:`gldt_core.eval.id_events`, when present); and the per-frame
+and ByteTrack+DIoU by event (:mod:`gldt_core.eval.id_events`), JPTrack's recoveries onto another
+target by what brought the lost track back (first stage, PMR, relink); and the per-frame
 update time (mean, p99) at 3 and 50 targets on one core. BLAS is limited to one thread for the
 whole run. ``--quick`` is a smoke run (1 short sequence per profile, 1 real clip of 60 frames).
 """
@@ -45,8 +46,11 @@ import argparse
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from collections.abc import Sequence
+
     import numpy as np
 
+    from gldt_core.eval.id_events import IdSwitchEvent
     from gldt_core.eval.streams import StreamSequence
 
 DEFAULT_HALMSTAD = None  # resolved by gldt_core.paths.halmstad_root() when used
@@ -59,6 +63,8 @@ OURS_BYTETRACK, JPTRACK_FULL, DIOU_PEER = "ByteTrack (ours)", "JPTrack JCMA+PMR"
 OURS_AT_BOXMOT, IOU_PEER = "ByteTrack (ours, boxmot's)", "boxmot ByteTrack (IoU)"
 #: Trackers whose identity switches are broken down by event.
 EVENT_TRACKERS = (JPTRACK_FULL, DIOU_PEER)
+#: A recovery onto another target whose new id has no recorded re-attachment before it.
+UNATTRIBUTED = "unattributed"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -293,17 +299,49 @@ def _real_profile(args: argparse.Namespace, name: str) -> tuple[ProfileRun | Non
     return ProfileRun(name, role, description, parameters, sequences), note
 
 
-def _track(make: Any, sequence: StreamSequence, timings: list[float] | None = None) -> np.ndarray:
-    """One tracker over one sequence, at the sequence's own frame rate."""
+def _track(
+    make: Any,
+    sequence: StreamSequence,
+    timings: list[float] | None = None,
+    reattachments: list[tuple[float, int, str]] | None = None,
+) -> np.ndarray:
+    """One tracker over one sequence, at the sequence's own frame rate; a tracker that records how
+    its lost tracks come back (``MultiStageTracker.reattachments``) fills ``reattachments``."""
     from gldt_core.track.runner import track_detection_rows
 
     tracker = make(sequence.size, sequence.fps)
+    if reattachments is not None and hasattr(tracker, "reattachments"):
+        tracker.reattachments = reattachments
     return track_detection_rows(tracker, sequence.dets, sequence.fps, num_frames=sequence.frames, timings=timings)
 
 
+def recoveries_by_mechanism(
+    events: Sequence[IdSwitchEvent], reattachments: Sequence[tuple[float, int, str]], fps: float
+) -> dict[str, int]:
+    """The identity switches of category "recovery onto another target" (a lost track re-attached
+    to another object) counted by what brought the track back: the latest entry of the tracker's
+    ``reattachments`` for the new id at or before the switch's frame (``t = (frame - 1) / fps``),
+    one of :data:`gldt_core.track.base.REATTACHMENTS`, or "unattributed" when there is none."""
+    from gldt_core.eval.id_events import RECOVERY_OTHER
+    from gldt_core.track.base import REATTACHMENTS
+
+    counts = dict.fromkeys((*REATTACHMENTS, UNATTRIBUTED), 0)
+    by_id: dict[int, list[tuple[float, str]]] = {}
+    for t, track_id, how in reattachments:
+        by_id.setdefault(int(track_id), []).append((t, how))
+    for event in events:
+        if event.category != RECOVERY_OTHER:
+            continue
+        t_switch = (event.frame - 1) / fps + 1e-9
+        before = [how for t, how in by_id.get(int(event.new_id), []) if t <= t_switch]
+        counts[before[-1] if before else UNATTRIBUTED] += 1
+    return counts
+
+
 def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, dict]:
-    """``results[profile][tracker]`` metrics and ``kept[profile][tracker]`` = [(gt, pred, dets, fps)]
-    of :data:`EVENT_TRACKERS`."""
+    """``results[profile][tracker]`` metrics and ``kept[profile][tracker]`` = [(gt, pred, dets, fps,
+    reattachments)] of :data:`EVENT_TRACKERS` (``reattachments`` stays empty for a tracker that
+    does not record them)."""
     import numpy as np
 
     from gldt_core.eval import evaluate_many
@@ -316,10 +354,13 @@ def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, d
             timings: list[float] = []
             pairs = {}
             for sequence in run.sequences:
-                pred = _track(make, sequence, timings)
+                log: list[tuple[float, int, str]] | None = [] if tracker_name in EVENT_TRACKERS else None
+                pred = _track(make, sequence, timings, log)
                 pairs[sequence.name] = (sequence.gt, pred)
                 if tracker_name in EVENT_TRACKERS:
-                    kept[profile].setdefault(tracker_name, []).append((sequence.gt, pred, sequence.dets, sequence.fps))
+                    kept[profile].setdefault(tracker_name, []).append(
+                        (sequence.gt, pred, sequence.dets, sequence.fps, log)
+                    )
             metrics = evaluate_many(pairs)["combined"]
             metrics["t_mean_ms"] = 1000 * float(np.mean(timings)) if timings else 0.0
             results[profile][tracker_name] = metrics
@@ -327,28 +368,31 @@ def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, d
     return results, kept
 
 
-def _id_switch_breakdown(kept: dict) -> tuple[dict | None, str]:
-    """Identity switches by event category, per profile and tracker of :data:`EVENT_TRACKERS`,
-    from :func:`gldt_core.eval.id_events.classify_id_switches` (summed over the sequences; it
-    returns a report with per-category ``counts``, or such a mapping itself). Returns None and
-    the reason when that module is not there."""
-    import importlib
-    import importlib.util
+def _id_switch_breakdown(kept: dict) -> tuple[dict, dict]:
+    """Per profile and tracker of :data:`EVENT_TRACKERS`, summed over the sequences: the identity
+    switches by event category (:func:`gldt_core.eval.id_events.classify_id_switches`) and, for
+    a tracker that records how its lost tracks come back, its recoveries onto another target by
+    mechanism (:func:`recoveries_by_mechanism`)."""
+    from gldt_core.eval.id_events import CATEGORIES, classify_id_switches
 
-    if importlib.util.find_spec("gldt_core.eval.id_events") is None:
-        return None, "identity-switch breakdown: SKIPPED, gldt_core.eval.id_events is not available"
-    module = importlib.import_module("gldt_core.eval.id_events")
     events: dict = {}
+    mechanisms: dict = {}
     for profile, per_tracker in kept.items():
-        events[profile] = {}
+        events[profile], mechanisms[profile] = {}, {}
         for tracker, runs in per_tracker.items():
-            total: dict[str, int] = dict.fromkeys(getattr(module, "CATEGORIES", ()), 0)
-            for gt, pred, dets, fps in runs:
-                result = module.classify_id_switches(gt, pred, dets, fps)
-                for category, count in dict(getattr(result, "counts", result)).items():
-                    total[category] = total.get(category, 0) + int(count)
+            total = dict.fromkeys(CATEGORIES, 0)
+            by_mechanism: dict[str, int] = {}
+            for gt, pred, dets, fps, reattachments in runs:
+                report = classify_id_switches(gt, pred, dets, fps)
+                for category, count in report.counts.items():
+                    total[category] += count
+                if reattachments:
+                    for how, count in recoveries_by_mechanism(report.events, reattachments, fps).items():
+                        by_mechanism[how] = by_mechanism.get(how, 0) + count
             events[profile][tracker] = total
-    return events, "identity switches by event: gldt_core.eval.id_events.classify_id_switches"
+            if by_mechanism:
+                mechanisms[profile][tracker] = by_mechanism
+    return events, mechanisms
 
 
 #: Timed runs per tracker and stream; the fastest run's mean and p99 are reported. On a shared
@@ -482,20 +526,28 @@ def target_lines(results: dict, worst: dict, speed: dict) -> list[str]:
     return lines
 
 
-def _print_events(events: dict) -> None:
-    categories: list[str] = []
-    for per in events.values():
-        for counts in per.values():
-            categories += [c for c in counts if c not in categories]
+def _print_events(events: dict, mechanisms: dict) -> None:
+    from gldt_core.eval.id_events import CATEGORIES, RECOVERY_OTHER
+
     print("\n[identity switches by event (gldt_core.eval.id_events), per profile; total = IDSW]")
-    head = f"{'profile':<23}{'tracker':<25}{'total':>6}" + "".join(f"{c[:12]:>13}" for c in categories)
+    head = f"{'profile':<23}{'tracker':<25}{'total':>6}" + "".join(f"{c[:12]:>13}" for c in CATEGORIES)
     print(head)
     print("-" * len(head))
     for profile, per in events.items():
         for tracker, counts in per.items():
-            cells = "".join(f"{counts.get(c, 0):13d}" for c in categories)
+            cells = "".join(f"{counts.get(c, 0):13d}" for c in CATEGORIES)
             print(f"{profile:<23}{tracker:<25}{sum(counts.values()):6d}{cells}")
-    print("(" + "; ".join(f"{c[:12]} = {c}" for c in categories if len(c) > 12) + ")")
+    print("(" + "; ".join(f"{c[:12]} = {c}" for c in CATEGORIES if len(c) > 12) + ")")
+    rows = [(profile, tracker, counts) for profile, per in mechanisms.items() for tracker, counts in per.items()]
+    if not rows:
+        return
+    columns = list(rows[0][2])
+    print(f"\n[{RECOVERY_OTHER}, by what brought the lost track back]")
+    head = f"{'profile':<23}{'tracker':<25}" + "".join(f"{c:>14}" for c in columns)
+    print(head)
+    print("-" * len(head))
+    for profile, tracker, counts in rows:
+        print(f"{profile:<23}{tracker:<25}" + "".join(f"{counts.get(c, 0):14d}" for c in columns))
 
 
 def _kalman_microbench() -> dict:
@@ -590,11 +642,8 @@ def run_bench(args: argparse.Namespace) -> int:
         _print_accuracy(results, runs)
         worst = worst_profiles(results, {name: run.role for name, run in runs.items()})
         _print_worst(worst)
-        events, events_note = _id_switch_breakdown(kept)
-        if events is None:
-            print(f"\n{events_note} (hook: gldt_core.bench.tracking._id_switch_breakdown)")
-        else:
-            _print_events(events)
+        events, mechanisms = _id_switch_breakdown(kept)
+        _print_events(events, mechanisms)
         speed, speed_source = _run_speed(factories, args.speed_frames, args.seed)
         print(
             f"\n[update time per frame, ms, one core; streams from {speed_source}, {args.speed_frames} frames "
@@ -620,7 +669,7 @@ def run_bench(args: argparse.Namespace) -> int:
     print(f"\n(total {time.time() - start:.0f} s)")
     if args.json:
         payload = {
-            "notes": notes + [peer_note, events_note],
+            "notes": notes + [peer_note],
             "profiles": {
                 name: {
                     "role": run.role,
@@ -642,6 +691,7 @@ def run_bench(args: argparse.Namespace) -> int:
             "accuracy": results,
             "worst": worst,
             "id_events": events,
+            "recoveries_by_mechanism": mechanisms,
             "speed": {str(k): v for k, v in speed.items()},
             "kalman": kalman,
             "targets": lines,

@@ -59,6 +59,12 @@ from gldt_core.track.state import (
 OUTPUT_STATES = (TrackState.CONFIRMED, TrackState.RECOVERED)
 #: Tolerance of the lost-track windows, against floating-point time differences.
 TIME_SLACK_S = 1e-9
+#: How a lost track came back (``MultiStageTracker.reattachments``): matched in the first stage
+#: (within the lost window), by the tracker's ``_recover`` (JPTrack's PMR), or by ``_relink``.
+REATTACHED_FIRST_STAGE = "first stage"
+REATTACHED_RECOVER = "PMR"
+REATTACHED_RELINK = "relink"
+REATTACHMENTS = (REATTACHED_FIRST_STAGE, REATTACHED_RECOVER, REATTACHED_RELINK)
 
 
 class MultiStageTracker:
@@ -103,6 +109,9 @@ class MultiStageTracker:
         self._kalman = kalman if kalman is not None else KalmanModel()
         self._strict_scores = strict_score_split
         self._predict_tentative = predict_tentative
+        #: Set to a list to record how lost tracks come back: ``(t, track_id, how)`` with ``how``
+        #: one of :data:`REATTACHMENTS` (``gldt bench tracking`` splits its recoveries by it).
+        self.reattachments: list[tuple[float, int, str]] | None = None
         self.reset()
 
     # --- public API -------------------------------------------------------------------------
@@ -187,6 +196,8 @@ class MultiStageTracker:
             used_t = set()
             keep_d = np.ones(len(det_idx), dtype=bool)
             for tr, (r, c) in zip(matched, pairs):
+                if tr.state is TrackState.LOST and self.reattachments is not None:
+                    self.reattachments.append((t, tr.track_id, REATTACHED_FIRST_STAGE))
                 if new_state is not None:
                     tr.state = new_state
                 elif tr.state in (TrackState.LOST, TrackState.RECOVERED):
@@ -223,6 +234,8 @@ class MultiStageTracker:
         dead_tentative, rest_high = apply(tentative, rest_high, confirming, TrackState.CONFIRMED)
         for newcomer, returned in back:
             newcomer.continue_as(returned)
+            if self.reattachments is not None:
+                self.reattachments.append((t, newcomer.track_id, REATTACHED_RELINK))
         dead_ids = {id(tr) for tr in dead_tentative} | {id(returned) for _, returned in back}
 
         # New tracks from the remaining confident detections.

@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gldt_core.track.assignment import assign
-from gldt_core.track.base import MultiStageTracker, iou_pair_cost
+from gldt_core.track.base import REATTACHED_RECOVER, MultiStageTracker, iou_pair_cost
 from gldt_core.track.boxes import midpoint
 from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
@@ -321,6 +321,8 @@ class JPTrack(MultiStageTracker):
         for tr in recovered:
             tr.state = TrackState.RECOVERED
             updated.add(id(tr))
+            if self.reattachments is not None:
+                self.reattachments.append((t, tr.track_id, REATTACHED_RECOVER))
         keep_high = np.asarray([d for d in rest_high if d not in used], dtype=np.int64)
         keep_low = np.asarray([d for d in rest_low if d not in used], dtype=np.int64)
         return keep_high, keep_low
