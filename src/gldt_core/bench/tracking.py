@@ -305,12 +305,13 @@ def _track(
     timings: list[float] | None = None,
     reattachments: list[tuple[float, int, str]] | None = None,
 ) -> np.ndarray:
-    """One tracker over one sequence, at the sequence's own frame rate; a tracker that records how
-    its lost tracks come back (``MultiStageTracker.reattachments``) fills ``reattachments``."""
+    """One tracker over one sequence, at the sequence's own frame rate; given ``reattachments``,
+    the tracker (one of ours) records in it how its lost tracks come back
+    (``MultiStageTracker.reattachments``)."""
     from gldt_core.track.runner import track_detection_rows
 
     tracker = make(sequence.size, sequence.fps)
-    if reattachments is not None and hasattr(tracker, "reattachments"):
+    if reattachments is not None:
         tracker.reattachments = reattachments
     return track_detection_rows(tracker, sequence.dets, sequence.fps, num_frames=sequence.frames, timings=timings)
 
@@ -340,8 +341,8 @@ def recoveries_by_mechanism(
 
 def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, dict]:
     """``results[profile][tracker]`` metrics and ``kept[profile][tracker]`` = [(gt, pred, dets, fps,
-    reattachments)] of :data:`EVENT_TRACKERS` (``reattachments`` stays empty for a tracker that
-    does not record them)."""
+    reattachments)] of :data:`EVENT_TRACKERS` (``reattachments``: JPTrack's record of how its
+    lost tracks came back; None for the others)."""
     import numpy as np
 
     from gldt_core.eval import evaluate_many
@@ -354,7 +355,7 @@ def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, d
             timings: list[float] = []
             pairs = {}
             for sequence in run.sequences:
-                log: list[tuple[float, int, str]] | None = [] if tracker_name in EVENT_TRACKERS else None
+                log: list[tuple[float, int, str]] | None = [] if tracker_name == JPTRACK_FULL else None
                 pred = _track(make, sequence, timings, log)
                 pairs[sequence.name] = (sequence.gt, pred)
                 if tracker_name in EVENT_TRACKERS:
@@ -386,11 +387,11 @@ def _id_switch_breakdown(kept: dict) -> tuple[dict, dict]:
                 report = classify_id_switches(gt, pred, dets, fps)
                 for category, count in report.counts.items():
                     total[category] += count
-                if reattachments:
+                if reattachments is not None:
                     for how, count in recoveries_by_mechanism(report.events, reattachments, fps).items():
                         by_mechanism[how] = by_mechanism.get(how, 0) + count
             events[profile][tracker] = total
-            if by_mechanism:
+            if by_mechanism:  # a tracker that records them
                 mechanisms[profile][tracker] = by_mechanism
     return events, mechanisms
 
