@@ -56,6 +56,7 @@ def test_empty_file_is_all_defaults(tmp_path):
         ("roi: {tau_safe: 1.5}", "tau_safe must be in"),
         ("- just a list", "top level must be a mapping"),
         ("scheduler: [1, 2", "not valid YAML"),
+        ("tracker: {jptrack: {pmr_size_ratio: 0.5}}", "tracker.jptrack: pmr_size_ratio must be >= 1"),
     ],
 )
 def test_bad_config_fails_with_one_line_naming_file_and_key(tmp_path, text, message):

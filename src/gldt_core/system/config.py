@@ -210,6 +210,10 @@ def _checked_tracker_parameters(section: Mapping[str, Any], tracker: str, where:
         if key not in defaults:
             raise ValueError(f"{where}.{key}: unknown {tracker} parameter (known: {', '.join(sorted(defaults))})")
         out[key] = _typed_like(value, defaults[key], f"{where}.{key}")
+    try:
+        config_class(**out)  # its own range checks, at load time rather than at the first frame
+    except ValueError as error:
+        raise ValueError(f"{where}: {error}") from None
     return out
 
 

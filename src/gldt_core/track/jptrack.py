@@ -115,7 +115,7 @@ class JPTrackConfig:
     pmr_relink: bool = True
     pmr_backend: str = "numpy"  # "numpy" (same EM as scikit-learn, faster) or "sklearn"
     # PMR (stage 3) brings a lost track back only with a detection whose size sqrt(w h) is within
-    # this factor of the track's own (module docstring); inf turns the gate off.
+    # this factor of the track's own (module docstring); a large value (1e9) turns the gate off.
     pmr_size_ratio: float = 2.5
     # The relink ranks its candidate pairs by the likelihood of both sightings' positions and
     # sizes; a sighting's log size ratio to the lost track's is taken as Gaussian with this std.
@@ -145,9 +145,13 @@ class JPTrackConfig:
 
     def __post_init__(self) -> None:
         if not self.pmr_size_ratio >= 1.0:
-            raise ValueError(f"pmr_size_ratio must be >= 1 (inf turns the size gate off), got {self.pmr_size_ratio!r}")
+            raise ValueError(
+                f"pmr_size_ratio must be >= 1 (a large value turns the size gate off), got {self.pmr_size_ratio!r}"
+            )
         if not self.relink_size_std > 0.0:
-            raise ValueError(f"relink_size_std must be > 0 (inf: rank by position only), got {self.relink_size_std!r}")
+            raise ValueError(
+                f"relink_size_std must be > 0 (a large value ranks by position only), got {self.relink_size_std!r}"
+            )
 
     def kalman_model(self) -> KalmanModel:
         """The filter of JPTrack's tracks: ``[cx, cy, w, h]`` with the ``kf_*`` floors."""
