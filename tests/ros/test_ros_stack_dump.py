@@ -71,7 +71,14 @@ def test_stop_dumps_the_stacks_of_a_node_that_ignores_sigint_before_killing_it(
 
 def test_a_node_that_stops_on_sigint_gets_no_dump(capsys: pytest.CaptureFixture[str], node_processes_of: Any) -> None:
     process = subprocess.Popen(
-        [sys.executable, "-c", "import time\nprint('ready', flush=True)\ntime.sleep(60)"],
+        # Python's own SIGINT handler set explicitly: under a test run started as a background
+        # job SIGINT is inherited ignored, and this stand-in would not stop on it.
+        [
+            sys.executable,
+            "-c",
+            "import signal, time\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n"
+            "print('ready', flush=True)\ntime.sleep(60)",
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
     )

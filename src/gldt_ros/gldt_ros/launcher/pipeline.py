@@ -677,7 +677,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     from rclpy.signals import SignalHandlerOptions
 
     # Ctrl-C (SIGINT) is Python's KeyboardInterrupt here, handled below like any stop: rclpy's own
-    # handler would shut the context down under the player, whose next publish then fails.
+    # handler would shut the context down under the player, whose next publish then fails. Set
+    # explicitly: started as a script's background job (`pipeline ... &`), the process inherits
+    # SIGINT ignored and Python then installs no handler, so `kill -INT` would not stop it.
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     rclpy.init(args=player_ros_args(args), signal_handler_options=SignalHandlerOptions.NO)
     if args.image_transport is not None:
         print(f"pipeline: the bag's frames go to image_transport {args.image_transport}", flush=True)
