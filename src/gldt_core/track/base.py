@@ -46,7 +46,7 @@ from gldt_core.track.boxes import (
     validate_time,
 )
 from gldt_core.track.fastpath import on_floats
-from gldt_core.track.kalman import KalmanModel, predicted_many
+from gldt_core.track.kalman import KalmanModel, predicted_many, stop_velocities
 from gldt_core.track.state import (
     Track,
     TrackState,
@@ -88,6 +88,7 @@ class MultiStageTracker:
         kalman: KalmanModel | None = None,
         strict_score_split: bool = False,
         predict_tentative: bool = True,
+        coasting_stops: tuple[int, ...] = (),
     ) -> None:
         if not 0.0 <= t_low <= t_high <= 1.0:
             raise ValueError(f"need 0 <= t_l <= t_h <= 1, got t_l={t_low}, t_h={t_high}")
@@ -109,6 +110,9 @@ class MultiStageTracker:
         self._kalman = kalman if kalman is not None else KalmanModel()
         self._strict_scores = strict_score_split
         self._predict_tentative = predict_tentative
+        #: Velocity columns of the filter state set to 0 once a track is lost (they stay 0 until
+        #: it is updated again): what of its motion a coasting box does not extrapolate.
+        self._coasting_stops = coasting_stops
         #: Set to a list to record how lost tracks come back: ``(t, track_id, how)`` with ``how``
         #: one of :data:`REATTACHMENTS` (``gldt bench tracking`` splits its recoveries by it).
         self.reattachments: list[tuple[float, int, str]] | None = None
@@ -263,6 +267,9 @@ class MultiStageTracker:
                     continue
             kept.append(tr)
         self._tracks = self._remove_duplicates(kept)
+        if self._coasting_stops:
+            coasting = [tr.kf for tr in self._tracks if tr.state is TrackState.LOST and tr.frames_since_update == 1]
+            stop_velocities(coasting, self._coasting_stops)
 
         shown = [tr for tr in self._tracks if tr.state in OUTPUT_STATES and id(tr) in updated]
         if not shown:

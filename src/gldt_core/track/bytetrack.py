@@ -42,7 +42,7 @@ import numpy as np
 
 from gldt_core.track.base import TIME_SLACK_S, MultiStageTracker, iou_pair_cost
 from gldt_core.track.boxes import iou_pairs_above
-from gldt_core.track.kalman import BYTETRACK_MODEL, stop_height_velocities
+from gldt_core.track.kalman import BYTETRACK_MODEL
 from gldt_core.track.state import Track, TrackState, box_rows
 
 #: IoU above which a tracked and a lost track are the same object (reference: IoU distance < 0.15).
@@ -125,6 +125,7 @@ class ByteTrack(MultiStageTracker):
             kalman=BYTETRACK_MODEL,
             strict_score_split=True,
             predict_tentative=False,
+            coasting_stops=(7,),  # a lost box keeps its height (the reference's prediction of lost tracks)
         )
 
     def reset(self) -> None:
@@ -148,8 +149,6 @@ class ByteTrack(MultiStageTracker):
             for tr, last in lost
             if tr.state is not TrackState.LOST and tr.last_update_t - last > removed_after  # back after removal
         )
-        # A lost box coasts at its last size (the reference's prediction of lost tracks).
-        stop_height_velocities([tr.kf for tr in self._tracks if tr.state is TrackState.LOST])
         return out
 
     def _pair_cost(

@@ -61,7 +61,7 @@ from gldt_core.track.base import REATTACHED_RECOVER, MultiStageTracker, iou_pair
 from gldt_core.track.boxes import midpoint
 from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
-from gldt_core.track.kalman import KalmanModel, stop_size_velocities
+from gldt_core.track.kalman import KalmanModel
 from gldt_core.track.pmr import PmrModel, c_time, fit_pmr, floor_variance, mode_density, p_match_many
 from gldt_core.track.state import Track, TrackState, box_row, update_tracks
 
@@ -192,6 +192,7 @@ class JPTrack(MultiStageTracker):
             image_size=c.image_size,
             low_score_birth_frames=c.low_score_birth_frames,
             kalman=c.kalman_model(),
+            coasting_stops=(6, 7),  # a lost box coasts at its last size (module docstring)
         )
         #: Number of PMR mixtures fitted since construction (the bench reports it).
         self.pmr_fits = 0
@@ -205,22 +206,6 @@ class JPTrack(MultiStageTracker):
         #: Per-frame cache of :meth:`_motion_row`: ``id(track) -> (hits, row)`` for time ``_motion_t``.
         self._motion_rows: dict[int, tuple[int, tuple[float, ...]]] = {}
         self._motion_t: float | None = None
-
-    def update(
-        self,
-        dets: np.ndarray | None,
-        t: float,
-        *,
-        rois: np.ndarray | None = None,
-        frame: int | None = None,
-    ) -> np.ndarray:
-        out = super().update(dets, t, rois=rois, frame=frame)
-        # A lost box coasts at its last size (module docstring); its velocities stay as set until
-        # the track is updated again, so only the tracks lost in this update need it.
-        stop_size_velocities(
-            [tr.kf for tr in self._tracks if tr.state is TrackState.LOST and tr.frames_since_update == 1]
-        )
-        return out
 
     # --- stage costs ------------------------------------------------------------------------
     def _pair_cost(

@@ -238,13 +238,6 @@ def stop_height_velocities(filters: list[ConstantVelocityKalman]) -> None:
     stop_velocities(filters, (7,))
 
 
-def stop_size_velocities(filters: list[ConstantVelocityKalman]) -> None:
-    """Set the velocities of both box sides (state columns 6 and 7) of each filter to 0: a lost
-    box coasts at its last size instead of shrinking to nothing or swelling over seconds of
-    extrapolated noise."""
-    stop_velocities(filters, (6, 7))
-
-
 def stop_velocities(filters: list[ConstantVelocityKalman], columns: tuple[int, ...]) -> None:
     """Set the given velocity columns (4-7) of each filter's state to 0."""
     cols = list(columns)
