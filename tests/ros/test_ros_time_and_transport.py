@@ -381,6 +381,12 @@ def test_a_sim_time_replay_onto_a_remapped_camera_topic_completes(tmp_path: Path
                 diagnostics.setdefault(status.name.removeprefix("gldt/"), []).append(stamp_ns(array.header.stamp))
 
         probe.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, latched)
+        # Which publishers of /diagnostics the probe discovered during the run: tells "never
+        # discovered" from "discovered, but no message arrived" if a node's statuses are missing.
+        discovered: set[str] = set()
+        probe.create_timer(
+            0.2, lambda: discovered.update(i.node_name for i in probe.get_publishers_info_by_topic("/diagnostics"))
+        )
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(probe)
         thread = start_spin_thread(executor)
@@ -410,7 +416,10 @@ def test_a_sim_time_replay_onto_a_remapped_camera_topic_completes(tmp_path: Path
         assert bag_stamps[0] <= log_time <= bag_stamps[-1], (log_time, stamp_ns(message.header.stamp))
     for name in NODES:
         in_bag_time = [s for s in diagnostics.get(name, []) if bag_stamps[0] < s <= bag_stamps[-1]]
-        assert in_bag_time, f"{name}: no diagnostics stamped in the replay's time: {diagnostics.get(name)}"
+        assert in_bag_time, (
+            f"{name}: no diagnostics stamped in the replay's time: {diagnostics.get(name)}; "
+            f"statuses from {sorted(diagnostics)}, publishers discovered {sorted(discovered)}"
+        )
 
 
 def test_a_default_replay_is_stamped_now(tmp_path: Path) -> None:
