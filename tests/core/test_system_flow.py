@@ -480,6 +480,26 @@ def test_ablation_runs_four_variants_on_shared_detectors():
     table = format_table("doubles", rows)
     assert "GD+LD+JPTrack vs GD+JPTrack" in table and "speed x" in table
     assert "20, of which 10 before a sequence's first LD frame; back from LD to GD: 1x LD ran 30 frames" in table
+    # One clip: its own figures are the totals, and the table lists it.
+    for row in rows:
+        assert list(row["per_clip"]) == ["doubles"]
+        for key in ("IDF1", "MOTA", "HOTA", "IDSW"):
+            assert row["per_clip"]["doubles"][key] == pytest.approx(row[key])
+    assert "per clip, worst IDF1 margin first: GD+LD+JPTrack vs GD+LD+ByteTrack" in table
+
+
+def test_ablation_per_clip_lines_put_the_clips_a_variant_loses_first():
+    from gldt_core.bench.ablation import per_clip_lines
+
+    def clip(idf1: float, idsw: int) -> dict:
+        return {"IDF1": idf1, "HOTA": idf1 - 10.0, "IDSW": idsw, "MOTA": 50.0, "MOTP": 70.0}
+
+    ours = {"variant": "A", "per_clip": {"V_1": clip(90.0, 0), "V_2": clip(60.0, 3), "V_3": clip(80.0, 1)}}
+    peer = {"variant": "B", "per_clip": {"V_1": clip(85.0, 1), "V_2": clip(70.0, 0), "V_3": clip(80.5, 1)}}
+    lines = per_clip_lines(ours, peer)
+    assert [line.split()[0] for line in lines[2:5]] == ["V_2", "V_3", "V_1"]  # margins -10, -0.5, +5
+    assert lines[-1] == "A has the lower IDF1 on 2 of 3 clips"
+    assert per_clip_lines({"variant": "A"}, peer) == []  # rows from before per-clip figures
 
 
 def test_ablation_plays_each_sequence_once_for_all_four_variants():

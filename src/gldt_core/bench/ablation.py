@@ -245,7 +245,8 @@ def run_dataset(
             print(f"ablation: {sequence.name} done (FPS so far: {speeds})", file=sys.stderr, flush=True)
     rows = []
     for run in runs:
-        metrics = evaluate_many(run.pairs)["combined"]
+        evaluated = evaluate_many(run.pairs)
+        metrics = evaluated["combined"]
         row: dict[str, Any] = {"variant": run.label, "frames": run.frames, "fps": run.fps}
         row["gd_frames"] = run.gd_frames
         row["gd_share"] = run.gd_frames / run.frames if run.frames else 0.0
@@ -255,6 +256,10 @@ def run_dataset(
         for key in METRICS:
             row[key] = int(metrics[key]) if key == "IDSW" else 100.0 * float(metrics[key])
         row["stage_ms"] = {name: ms for name, ms, _, _ in run.timer.breakdown(run.frames)}
+        row["per_clip"] = {
+            name: {key: int(m[key]) if key == "IDSW" else 100.0 * float(m[key]) for key in METRICS}
+            for name, m in evaluated["per_sequence"].items()
+        }
         rows.append(row)
     return rows
 
@@ -348,7 +353,31 @@ def format_table(title: str, rows: list[dict[str, Any]]) -> str:
     lines.append(f"GD+LD+JPTrack time per frame (ms): {stages}")
     stages = ", ".join(f"{k} {v:.1f}" for k, v in gd_only["stage_ms"].items())
     lines.append(f"GD+JPTrack    time per frame (ms): {stages}")
+    lines += per_clip_lines(by_name["GD+LD+JPTrack"], by_name["GD+LD+ByteTrack"])
     return "\n".join(lines)
+
+
+def per_clip_lines(ours: dict[str, Any], peer: dict[str, Any]) -> list[str]:
+    """Each clip's IDF1, HOTA and IDSW of two ablation rows side by side, worst IDF1 margin first:
+    a total over the clips can hide the clips where a variant loses. Empty without per-clip figures."""
+    ours_clips, peer_clips = ours.get("per_clip") or {}, peer.get("per_clip") or {}
+    names = sorted(set(ours_clips) & set(peer_clips), key=lambda n: ours_clips[n]["IDF1"] - peer_clips[n]["IDF1"])
+    if not names:
+        return []
+    a, b = ours["variant"], peer["variant"]
+    lines = [
+        f"per clip, worst IDF1 margin first: {a} vs {b}",
+        f"{'clip':<16}{'IDF1':>17}{'HOTA':>17}{'IDSW':>12}",
+    ]
+    for name in names:
+        x, y = ours_clips[name], peer_clips[name]
+        lines.append(
+            f"{name:<16}{x['IDF1']:>7.2f} vs {y['IDF1']:>6.2f}{x['HOTA']:>7.2f} vs {y['HOTA']:>6.2f}"
+            f"{x['IDSW']:>5d} vs {y['IDSW']:>3d}"
+        )
+    losses = sum(ours_clips[n]["IDF1"] < peer_clips[n]["IDF1"] for n in names)
+    lines.append(f"{a} has the lower IDF1 on {losses} of {len(names)} clips")
+    return lines
 
 
 def _ratio_without_decode(ours: dict[str, Any], peer: dict[str, Any]) -> float | None:
