@@ -99,6 +99,25 @@ def test_a_one_profile_run_reports_it_with_its_role(capsys) -> None:
 
 
 @pytest.mark.slow
+def test_sequence_margins_count_the_sequences_a_tracker_loses_and_name_its_worst() -> None:
+    def seq(hota: float, idf1: float) -> dict:
+        return {"HOTA": hota, "IDF1": idf1, "MOTA": 0.5, "IDSW": 0}
+
+    per_sequence = {
+        "a": {
+            "J": {"s1": seq(0.6, 0.7), "s2": seq(0.4, 0.5), "s3": seq(0.5, 0.9)},
+            "P": {"s1": seq(0.5, 0.6), "s2": seq(0.45, 0.8), "s3": seq(0.5, 0.8)},
+        },
+        "b": {"J": {"s1": seq(0.6, 0.7)}},  # the peer did not run here
+    }
+    margins = tracking.sequence_margins(per_sequence, "J", "P")
+    assert list(margins) == ["a"]
+    a = margins["a"]
+    assert a["sequences"] == 3 and a["behind_HOTA"] == 1 and a["behind_IDF1"] == 1
+    assert a["worst_HOTA"]["sequence"] == "s2" and a["worst_HOTA"]["margin"] == pytest.approx(-0.05)
+    assert a["worst_IDF1"] == {"sequence": "s2", "margin": pytest.approx(-0.3)}
+
+
 def test_quick_benchmark_reports_every_profile_tracker_and_the_worst_profile(
     tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -131,6 +150,15 @@ def test_quick_benchmark_reports_every_profile_tracker_and_the_worst_profile(
     if has_boxmot:
         assert any(line.startswith("[worst profile] HOTA: JPTrack") for line in payload["targets"])
         assert "BoT-SORT without ReID" in text
+        assert "sequence by sequence: where it is behind" in text
+        for name, entry in payload["sequence_margins"].items():
+            sequences = payload["accuracy_per_sequence"][name]["JPTrack JCMA+PMR"]
+            assert entry["sequences"] == len(sequences) == len(payload["profiles"][name]["sequences"])
+    for name in payload["accuracy"]:  # one figure per sequence, per tracker
+        for tracker in trackers:
+            assert set(payload["accuracy_per_sequence"][name][tracker]) == {
+                s["name"] for s in payload["profiles"][name]["sequences"]
+            }
     assert "identity switches by event" in text
     for name in payload["id_events"]:
         events = payload["id_events"][name]["JPTrack JCMA+PMR"]

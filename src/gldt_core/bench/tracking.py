@@ -59,6 +59,8 @@ DEFAULT_HALMSTAD = None  # resolved by gldt_core.paths.halmstad_root() when used
 #: on ``val``'s clips; ``val_b``'s are held out.
 REAL_PROFILES = {"real-detector-val": "val", "real-detector-val_b": "val_b"}
 OURS_BYTETRACK, JPTRACK_FULL, DIOU_PEER = "ByteTrack (ours)", "JPTrack JCMA+PMR", "boxmot ByteTrack (DIoU)"
+#: The metrics kept for each sequence (the JSON's ``accuracy_per_sequence``; fractions, IDSW a count).
+SEQUENCE_METRICS = ("HOTA", "IDF1", "MOTA", "IDSW")
 #: Our ByteTrack at boxmot's defaults, and boxmot's ByteTrack (IoU): the faithfulness check.
 OURS_AT_BOXMOT, IOU_PEER = "ByteTrack (ours, boxmot's)", "boxmot ByteTrack (IoU)"
 #: Trackers whose identity switches are broken down by event.
@@ -339,18 +341,20 @@ def recoveries_by_mechanism(
     return counts
 
 
-def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, dict]:
-    """``results[profile][tracker]`` metrics and ``kept[profile][tracker]`` = [(gt, pred, dets, fps,
-    reattachments)] of :data:`EVENT_TRACKERS` (``reattachments``: JPTrack's record of how its
+def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, dict, dict]:
+    """``results[profile][tracker]`` metrics, ``per_sequence[profile][tracker][sequence]`` the
+    :data:`SEQUENCE_METRICS` of each sequence, and ``kept[profile][tracker]`` = [(gt, pred, dets,
+    fps, reattachments)] of :data:`EVENT_TRACKERS` (``reattachments``: JPTrack's record of how its
     lost tracks came back; None for the others)."""
     import numpy as np
 
     from gldt_core.eval import evaluate_many
 
     results: dict = {}
+    per_sequence: dict = {}
     kept: dict = {}
     for profile, run in runs.items():
-        results[profile], kept[profile] = {}, {}
+        results[profile], per_sequence[profile], kept[profile] = {}, {}, {}
         for tracker_name, make in factories.items():
             timings: list[float] = []
             pairs = {}
@@ -362,11 +366,56 @@ def _run_accuracy(runs: dict[str, ProfileRun], factories: dict) -> tuple[dict, d
                     kept[profile].setdefault(tracker_name, []).append(
                         (sequence.gt, pred, sequence.dets, sequence.fps, log)
                     )
-            metrics = evaluate_many(pairs)["combined"]
+            evaluated = evaluate_many(pairs)
+            metrics = evaluated["combined"]
             metrics["t_mean_ms"] = 1000 * float(np.mean(timings)) if timings else 0.0
             results[profile][tracker_name] = metrics
+            per_sequence[profile][tracker_name] = {
+                name: {key: m[key] for key in SEQUENCE_METRICS} for name, m in evaluated["per_sequence"].items()
+            }
         print(f"  ran {profile}", flush=True)
-    return results, kept
+    return results, per_sequence, kept
+
+
+def sequence_margins(per_sequence: dict, ours: str, peer: str) -> dict:
+    """Per profile, ``ours`` against ``peer`` sequence by sequence: on how many sequences it is
+    behind on HOTA and on IDF1, and its worst margin of each with the sequence it comes from. A
+    total over a profile's sequences can hide the ones a tracker loses. Profiles where either
+    tracker did not run are left out."""
+    out: dict = {}
+    for profile, trackers in per_sequence.items():
+        if ours not in trackers or peer not in trackers:
+            continue
+        a, b = trackers[ours], trackers[peer]
+        names = sorted(set(a) & set(b))
+        if not names:
+            continue
+        entry: dict = {"sequences": len(names)}
+        for metric in ("HOTA", "IDF1"):
+            margins = {name: a[name][metric] - b[name][metric] for name in names}
+            worst = min(names, key=lambda name: margins[name])
+            entry[f"behind_{metric}"] = sum(margin < 0 for margin in margins.values())
+            entry[f"worst_{metric}"] = {"sequence": worst, "margin": margins[worst]}
+        out[profile] = entry
+    return out
+
+
+def _print_sequence_margins(margins: dict, ours: str, peer: str) -> None:
+    if not margins:
+        return
+    print(f"\n[{ours} against {peer}, sequence by sequence: where it is behind, and its worst margin]")
+    head = (
+        f"{'profile':<23}{'seqs':>5}{'HOTA behind':>13}{'worst':>8}  {'sequence':<26}"
+        f"{'IDF1 behind':>12}{'worst':>8}  sequence"
+    )
+    print(head)
+    print("-" * len(head))
+    for profile, e in margins.items():
+        hota, idf1 = e["worst_HOTA"], e["worst_IDF1"]
+        print(
+            f"{profile:<23}{e['sequences']:>5}{e['behind_HOTA']:>13}{100 * hota['margin']:>+8.2f}  "
+            f"{hota['sequence']:<26}{e['behind_IDF1']:>12}{100 * idf1['margin']:>+8.2f}  {idf1['sequence']}"
+        )
 
 
 def _id_switch_breakdown(kept: dict) -> tuple[dict, dict]:
@@ -639,10 +688,12 @@ def run_bench(args: argparse.Namespace) -> int:
             print(f"    {run.summary()}")
         if not runs:
             raise ValueError("no streams to run: every selected profile was skipped or empty")
-        results, kept = _run_accuracy(runs, factories)
+        results, per_sequence, kept = _run_accuracy(runs, factories)
         _print_accuracy(results, runs)
         worst = worst_profiles(results, {name: run.role for name, run in runs.items()})
         _print_worst(worst)
+        margins = sequence_margins(per_sequence, JPTRACK_FULL, DIOU_PEER)
+        _print_sequence_margins(margins, JPTRACK_FULL, DIOU_PEER)
         events, mechanisms = _id_switch_breakdown(kept)
         _print_events(events, mechanisms)
         speed, speed_source = _run_speed(factories, args.speed_frames, args.seed)
@@ -690,6 +741,8 @@ def run_bench(args: argparse.Namespace) -> int:
                 for name, run in runs.items()
             },
             "accuracy": results,
+            "accuracy_per_sequence": per_sequence,
+            "sequence_margins": margins,
             "worst": worst,
             "id_events": events,
             "recoveries_by_mechanism": mechanisms,
