@@ -87,6 +87,19 @@ def test_targets_are_marked_per_profile_and_on_the_worst_profile() -> None:
     assert "HOTA: JPTrack 30.00 (hard) vs ByteTrack+DIoU 35.00 (hard) (MISSED)" in worst_lines[0]
     assert "IDF1: JPTrack 40.00 (hard) vs ByteTrack+DIoU 38.00 (hard) (OK)" in worst_lines[1]
     assert any("[speed 3 targets]" in line and "2.00x" in line for line in lines)
+    assert "per 1000 matched boxes" not in easy[1]  # no TP counts given
+
+
+def test_identity_switches_are_also_read_per_matched_box_against_our_bytetrack() -> None:
+    diou, ours, jp = tracking.DIOU_PEER, tracking.OURS_BYTETRACK, tracking.JPTRACK_FULL
+    few = {"HOTA": 0.03, "IDF1": 0.04, "IDSW": 22, "TP": 176}  # keeps almost no track
+    many = {"HOTA": 0.25, "IDF1": 0.40, "IDSW": 33, "TP": 2492}
+    results = {"sparse": {jp: many, diou: {**many, "IDSW": 45}, ours: few}}
+    worst = tracking.worst_profiles(results, {"sparse": "held-out"})
+    speed = {3: {jp: {"mean_ms": 0.2}, ours: {"mean_ms": 0.1}}}
+    line = [x for x in tracking.target_lines(results, worst, speed) if "vs our ByteTrack" in x][0]
+    # The target stays the raw count (missed); the normalised figures are context.
+    assert "IDSW 33/22 = 1.50 (<= 0.50: MISSED; per 1000 matched boxes 13.2 vs 125.0)" in line
 
 
 def test_a_one_profile_run_reports_it_with_its_role(capsys) -> None:
