@@ -111,7 +111,6 @@ def test_a_one_profile_run_reports_it_with_its_role(capsys) -> None:
     assert "[occlusion-15hz] vs our ByteTrack" in text and "not run (boxmot peers missing or skipped)" in text
 
 
-@pytest.mark.slow
 def test_sequence_margins_count_the_sequences_a_tracker_loses_and_name_its_worst() -> None:
     def seq(hota: float, idf1: float) -> dict:
         return {"HOTA": hota, "IDF1": idf1, "MOTA": 0.5, "IDSW": 0}
@@ -131,6 +130,7 @@ def test_sequence_margins_count_the_sequences_a_tracker_loses_and_name_its_worst
     assert a["worst_IDF1"] == {"sequence": "s2", "margin": pytest.approx(-0.3)}
 
 
+@pytest.mark.slow
 def test_quick_benchmark_reports_every_profile_tracker_and_the_worst_profile(
     tmp_path: Path, capsys, monkeypatch: pytest.MonkeyPatch
 ) -> None:
