@@ -253,15 +253,16 @@ def run_dataset(
         row["roi_coverage"] = run.coverage[0] / run.coverage[1] if run.coverage[1] else None
         row["search_gd_frames"] = run.search_gd_frames
         row["back_to_gd"] = dict(run.back_to_gd)
-        for key in METRICS:
-            row[key] = int(metrics[key]) if key == "IDSW" else 100.0 * float(metrics[key])
+        row.update(_in_percent(metrics))
         row["stage_ms"] = {name: ms for name, ms, _, _ in run.timer.breakdown(run.frames)}
-        row["per_clip"] = {
-            name: {key: int(m[key]) if key == "IDSW" else 100.0 * float(m[key]) for key in METRICS}
-            for name, m in evaluated["per_sequence"].items()
-        }
+        row["per_clip"] = {name: _in_percent(m) for name, m in evaluated["per_sequence"].items()}
         rows.append(row)
     return rows
+
+
+def _in_percent(metrics: dict[str, Any]) -> dict[str, Any]:
+    """The :data:`METRICS` of an evaluation as the ablation reports them: percent, IDSW a count."""
+    return {key: int(metrics[key]) if key == "IDSW" else 100.0 * float(metrics[key]) for key in METRICS}
 
 
 class _VariantRun:
