@@ -361,23 +361,24 @@ def format_table(title: str, rows: list[dict[str, Any]]) -> str:
 def per_clip_lines(ours: dict[str, Any], peer: dict[str, Any]) -> list[str]:
     """Each clip's IDF1, HOTA and IDSW of two ablation rows side by side, worst IDF1 margin first:
     a total over the clips can hide the clips where a variant loses. Empty without per-clip figures."""
+    from gldt_core.eval.margins import margins_by_sequence
+
     ours_clips, peer_clips = ours.get("per_clip") or {}, peer.get("per_clip") or {}
-    names = sorted(set(ours_clips) & set(peer_clips), key=lambda n: ours_clips[n]["IDF1"] - peer_clips[n]["IDF1"])
-    if not names:
+    idf1 = margins_by_sequence(ours_clips, peer_clips, "IDF1")
+    if idf1 is None:
         return []
     a, b = ours["variant"], peer["variant"]
     lines = [
         f"per clip, worst IDF1 margin first: {a} vs {b}",
         f"{'clip':<16}{'IDF1':>17}{'HOTA':>17}{'IDSW':>12}",
     ]
-    for name in names:
+    for name in idf1.margins:
         x, y = ours_clips[name], peer_clips[name]
         lines.append(
             f"{name:<16}{x['IDF1']:>7.2f} vs {y['IDF1']:>6.2f}{x['HOTA']:>7.2f} vs {y['HOTA']:>6.2f}"
             f"{x['IDSW']:>5d} vs {y['IDSW']:>3d}"
         )
-    losses = sum(ours_clips[n]["IDF1"] < peer_clips[n]["IDF1"] for n in names)
-    lines.append(f"{a} has the lower IDF1 on {losses} of {len(names)} clips")
+    lines.append(f"{a} has the lower IDF1 on {idf1.behind} of {len(idf1.margins)} clips")
     return lines
 
 

@@ -382,21 +382,23 @@ def sequence_margins(per_sequence: dict, ours: str, peer: str) -> dict:
     behind on HOTA and on IDF1, and its worst margin of each with the sequence it comes from. A
     total over a profile's sequences can hide the ones a tracker loses. Profiles where either
     tracker did not run are left out."""
+    from gldt_core.eval.margins import margins_by_sequence
+
     out: dict = {}
     for profile, trackers in per_sequence.items():
         if ours not in trackers or peer not in trackers:
             continue
-        a, b = trackers[ours], trackers[peer]
-        names = sorted(set(a) & set(b))
-        if not names:
-            continue
-        entry: dict = {"sequences": len(names)}
+        entry: dict = {}
         for metric in ("HOTA", "IDF1"):
-            margins = {name: a[name][metric] - b[name][metric] for name in names}
-            worst = min(names, key=lambda name: margins[name])
-            entry[f"behind_{metric}"] = sum(margin < 0 for margin in margins.values())
-            entry[f"worst_{metric}"] = {"sequence": worst, "margin": margins[worst]}
-        out[profile] = entry
+            margins = margins_by_sequence(trackers[ours], trackers[peer], metric)
+            if margins is None:
+                break
+            worst, margin = margins.worst
+            entry["sequences"] = len(margins.margins)
+            entry[f"behind_{metric}"] = margins.behind
+            entry[f"worst_{metric}"] = {"sequence": worst, "margin": margin}
+        if entry:
+            out[profile] = entry
     return out
 
 
