@@ -585,6 +585,12 @@ def train(
 
     val_loader = DataLoader(val_ds, batch_size=4, shuffle=False, collate_fn=collate)
     workers = int(tcfg["loader_workers"])
+    if workers:
+        # The loader's workers are forked from this process, and OpenCV's thread pool does not
+        # survive a fork: a worker that resizes the copied pool (one_thread_worker) can wait forever
+        # on a condition variable of threads that only exist here. The workers do the augmenting,
+        # so this process needs no OpenCV threads, and one thread leaves no pool to copy.
+        cv2.setNumThreads(1)
 
     epoch_s = 0.0  # how long the last epoch took, validation included
     for epoch in range(first_epoch, tcfg["epochs"] + 1):
