@@ -4,6 +4,7 @@ not belong to its model is never used."""
 
 from __future__ import annotations
 
+import json
 import shutil
 from itertools import islice
 from pathlib import Path
@@ -14,6 +15,13 @@ import pytest
 from gldt_core.detect import DetectorConfigError, GlobalCarry, GlobalDetector, shipped_model_path
 from gldt_core.detect.feature_reuse import features_path, reuse_path
 from support import REPO_ROOT
+
+
+def stride4_channels(kind: str) -> int:
+    """Channels of a shipped AM-YOLO's stride-4 stage (the features its split pair carries), from its card."""
+    card = json.loads(shipped_model_path(kind).with_suffix(".json").read_text())
+    return int(card["spec"]["channels"][1])
+
 
 REAL_BAG = REPO_ROOT / "bags" / "halmstad_v_drone_001"
 SYNTHETIC_BAG = REPO_ROOT / "bags" / "synth_1080p_multi_uav"
@@ -77,7 +85,9 @@ def test_features_of_another_frame_size_are_recomputed_not_fed(detectors) -> Non
         current_input, current_input, mapping, frame.shape[1], frame.shape[0], wrong
     )
     np.testing.assert_array_equal(boxes, full.detect(frame, frame))
-    assert features is not None and features.shape == (1, 16, current_input.shape[0] // 4, current_input.shape[1] // 4)
+    channels = stride4_channels("global")
+    assert features is not None
+    assert features.shape == (1, channels, current_input.shape[0] // 4, current_input.shape[1] // 4)
     # And a stale carry of another input size is ignored as a whole.
     stale = GlobalCarry(np.zeros((64, 64, 3), np.uint8), wrong)
     np.testing.assert_array_equal(reusing.detect_pair(frame, frame, stale)[0], full.detect(frame, frame))
@@ -158,7 +168,8 @@ def test_the_shipped_split_files_are_what_the_export_writes_today(tmp_path: Path
         copy = tmp_path / source.name
         shutil.copy(source, copy)
         result = write_feature_reuse(copy)
-        assert result.max_abs_diff <= MAX_ABS_DIFF and result.stride == 4 and result.channels == 16
+        assert result.max_abs_diff <= MAX_ABS_DIFF and result.stride == 4
+        assert result.channels == stride4_channels(kind)
         for made, shipped in ((result.features_model, features_path(source)), (result.reuse_model, reuse_path(source))):
             fresh, kept = onnx.load(str(made)), onnx.load(str(shipped))
             stale = f"{shipped.name} is stale: run `gldt export {source} --feature-reuse`"

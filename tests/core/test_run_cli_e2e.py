@@ -39,7 +39,8 @@ def check_full_run(tmp_path, capsys, frames: int, size: str) -> None:
     rows = read_mot(out)
     if len(rows):
         assert rows[:, 0].min() >= 1 and rows[:, 0].max() <= frames
-        assert np.all(rows[:, 4] > 0) and np.all(rows[:, 7:] == -1)
+        assert np.all(rows[:, 4] > 0) and np.all(rows[:, 8:] == -1)
+        assert set(np.unique(rows[:, 7])) <= {1.0, 2.0, 3.0, -1.0}  # the track's class, -1 unknown
     capture = cv2.VideoCapture(str(video))
     assert int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) == frames
     ok, image = capture.read()

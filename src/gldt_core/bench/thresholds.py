@@ -27,7 +27,7 @@ from typing import Any
 
 #: The grid printed by default: the GL-DT system's shipped pair first (the peer), then the pairs
 #: around it that the choice in ``SHIPPED_DETECTOR_SCORES`` was made from.
-DEFAULT_GRID = "0.1:0.5,0.1:0.4,0.1:0.6,0.2:0.5,0.1:0.25"
+DEFAULT_GRID = "0.1:0.55,0.1:0.5,0.1:0.6,0.1:0.65,0.2:0.55,0.1:0.25"
 
 
 @dataclass(frozen=True)
