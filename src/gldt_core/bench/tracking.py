@@ -388,17 +388,16 @@ def sequence_margins(per_sequence: dict, ours: str, peer: str) -> dict:
     for profile, trackers in per_sequence.items():
         if ours not in trackers or peer not in trackers:
             continue
-        entry: dict = {}
-        for metric in ("HOTA", "IDF1"):
-            margins = margins_by_sequence(trackers[ours], trackers[peer], metric)
-            if margins is None:
-                break
+        hota = margins_by_sequence(trackers[ours], trackers[peer], "HOTA")
+        if hota is None:  # no sequence in common
+            continue
+        entry: dict = {"sequences": len(hota.margins)}
+        for margins in (hota, margins_by_sequence(trackers[ours], trackers[peer], "IDF1")):
+            assert margins is not None  # the same sequences as HOTA's
             worst, margin = margins.worst
-            entry["sequences"] = len(margins.margins)
-            entry[f"behind_{metric}"] = margins.behind
-            entry[f"worst_{metric}"] = {"sequence": worst, "margin": margin}
-        if entry:
-            out[profile] = entry
+            entry[f"behind_{margins.metric}"] = margins.behind
+            entry[f"worst_{margins.metric}"] = {"sequence": worst, "margin": margin}
+        out[profile] = entry
     return out
 
 
