@@ -173,3 +173,47 @@ def test_the_committed_checkpoint_resumes_under_the_shipped_config_and_matches_t
     card = json.loads(classifier_path_for(DEFAULT_GLOBAL_MODEL).with_suffix(".json").read_text())
     assert card["training"]["cpu_seconds_total"] == pytest.approx(checkpoint["wall_s"], abs=0.1)
     assert (REPO_ROOT / "checkpoints/second_stage.pt").stat().st_size < 15 * 1024 * 1024
+
+
+def test_synthetic_scenes_cycle_their_scales_and_refuse_a_bad_one() -> None:
+    from gldt_core.sim import presets
+    from gldt_core.training.second_stage import synthetic_scenes
+
+    scenes = synthetic_scenes({"scenes": 3, "frames": 20, "scales": [0.5, 1.0]})
+    assert [item.scale for item in scenes] == [0.5, 1.0, 0.5]
+    assert [item.scene for item in scenes] == presets.split("train", count=3, frames=20)
+    assert len({item.name for item in scenes}) == 3 and all("-x0.500" in scenes[i].name for i in (0, 2))
+    assert synthetic_scenes({"scenes": 0, "frames": 20, "scales": []}) == []
+    with pytest.raises(ValueError, match=r"data\.synthetic\.scales must be in \(0, 1\], got \[0\.5, 2\.0\]"):
+        synthetic_scenes({"scenes": 1, "frames": 20, "scales": [0.5, 2.0]})
+
+
+def test_a_synthetic_scene_is_cut_at_its_scale_with_its_drones_labelled(tmp_path: Path) -> None:
+    from gldt_core.detect.shipped import DEFAULT_GLOBAL_MODEL, DEFAULT_LOCAL_MODEL
+    from gldt_core.sim import SceneRenderer, presets
+    from gldt_core.training.crops import CropSpec, SceneCrops, build_crops, scene_frames
+
+    scene = presets.split("train", count=2, frames=11)[1]  # a MOT-FLY-like scene: drones of 12-80 px
+    item = SceneCrops(scene, 1 / 3)
+    frames = list(scene_frames(item, 5))
+    assert len(frames) == 2  # frames 1 and 6, each with the frame before it
+    previous, frame, boxes, classes = frames[0]
+    assert frame.shape == previous.shape == (360, 640, 3)
+    renderer = SceneRenderer(scene)
+    _, rows = renderer.render_with_truth(1)
+    np.testing.assert_allclose(boxes[:, :2], rows[:, 2:4] / 3, atol=1e-9)
+    np.testing.assert_allclose(boxes[:, 2:] - boxes[:, :2], rows[:, 4:6] / 3, atol=1e-9)
+    assert classes.tolist() == rows[:, 7].astype(int).tolist() and 1 in classes
+    assert not np.array_equal(previous, frame)  # the pair shows motion
+
+    spec = CropSpec(frame_step=5, local_candidates=0)
+    crops = build_crops(
+        tmp_path, [], spec, tmp_path / "cache", DEFAULT_GLOBAL_MODEL, DEFAULT_LOCAL_MODEL, False, scenes=[item]
+    )
+    assert crops.clip_names == [item.name]
+    drones = crops.labels == 1
+    assert drones.sum() >= 2 * len(rows[rows[:, 7] == 1])  # every drone jittered twice on each frame, at least
+    assert (crops.quality[drones] > 0).all() and (crops.quality[crops.labels == 0] == 0).all()
+    assert (
+        tmp_path / "cache" / f"crops_{spec.key(DEFAULT_GLOBAL_MODEL, DEFAULT_LOCAL_MODEL)}" / f"{item.name}.npz"
+    ).is_file()

@@ -200,3 +200,18 @@ def test_the_detector_nodes_ask_the_model_about_their_classes_parameter() -> Non
     }
     assert detector_kwargs(params.get)["classes"] == (1,)
     assert detector_kwargs({**params, "classes": ""}.get)["classes"] is None
+
+
+def test_a_node_process_freezes_what_start_up_left_so_collections_skip_it() -> None:
+    import gc
+
+    from gldt_ros.runtime.node_base import freeze_start_up_objects
+
+    try:
+        freeze_start_up_objects()
+        frozen = gc.get_freeze_count()
+        assert frozen > 1000  # the modules and objects of this test process
+        made = [[index] for index in range(100)]  # what a frame makes later stays collectable
+        assert gc.get_freeze_count() == frozen and all(gc.is_tracked(item) for item in made)
+    finally:
+        gc.unfreeze()

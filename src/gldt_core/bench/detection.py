@@ -74,7 +74,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="ask the detectors about every class and keep the boxes whose best class is drone; "
         "default: ask about drones only, as the GL-DT system does",
     )
-    parser.add_argument("--latency-runs", type=int, default=30)
+    parser.add_argument(
+        "--latency-runs", type=int, default=30, help="timed runs per model and thread count (0: accuracy only)"
+    )
     parser.add_argument(
         "--latency-threads", type=int, nargs="+", default=[1, 2], help="onnxruntime thread counts to time"
     )
@@ -369,7 +371,9 @@ def _run(args: argparse.Namespace) -> int:
     stretch = [frame_1080, np.roll(frame_1080, 3, axis=1)]
     rois = np.array([[100, 100, 400, 400], [800, 300, 1100, 600], [1400, 500, 1700, 800], [300, 700, 600, 1000]])
     report["latency_ms"] = {}
-    for threads in args.latency_threads:
+    if args.latency_runs < 1:
+        print(f"latency: not timed (--latency-runs {args.latency_runs})")
+    for threads in args.latency_threads if args.latency_runs >= 1 else []:
         args_t = argparse.Namespace(**{**vars(args), "threads": threads})
         timed = _detectors(args_t, threshold=None)
         latency = {

@@ -16,6 +16,7 @@ Classes: index 0 drone, 1 bird, 2 airplane (helicopters are folded into airplane
 from __future__ import annotations
 
 import hashlib
+import multiprocessing
 import os
 import pickle
 from collections.abc import Callable, Iterable, Sequence
@@ -135,10 +136,15 @@ _Result = TypeVar("_Result")
 
 def _map_in_order(work: Callable[[_Item], _Result], items: Sequence[_Item], workers: int) -> list[_Result]:
     """``[work(i) for i in items]``, spread over ``workers`` processes when > 1 (order kept, so the
-    cached data set is the same whatever the worker count)."""
+    cached data set is the same whatever the worker count).
+
+    The workers come from a fork server, not a fork of this process: a fork copies OpenCV's and
+    torch's thread pools without their threads, and a worker that touched such a pool could
+    wait forever (as the DataLoader's workers did: see ``training.train``)."""
     if workers <= 1 or len(items) <= 1:
         return [work(item) for item in items]
-    with ProcessPoolExecutor(max_workers=min(workers, len(items))) as pool:
+    context = multiprocessing.get_context("forkserver")
+    with ProcessPoolExecutor(max_workers=min(workers, len(items)), mp_context=context) as pool:
         return list(pool.map(work, items))
 
 

@@ -36,7 +36,7 @@ from gldt_core.detect.second_stage import (
     evidence,
 )
 from gldt_core.eval.halmstad_split import clip_category, halmstad_split
-from gldt_core.training.crops import SOURCES, CropSet, CropSpec, build_crops
+from gldt_core.training.crops import SOURCES, CropSet, CropSpec, SceneCrops, build_crops
 from gldt_core.training.resume import ResumeError, read_checkpoint
 
 DEFAULTS: dict[str, Any] = {
@@ -51,6 +51,9 @@ DEFAULTS: dict[str, Any] = {
         "crops": asdict(CropSpec()),
         "global_model": None,
         "local_model": None,
+        # Scenes of the synthetic train split cut into crops too, all for fitting (never for the
+        # calibration, which stays on real clips); scene i at scales[i % len(scales)].
+        "synthetic": {"scenes": 0, "frames": 60, "scales": [1 / 3, 2 / 3]},
     },
     "train": {
         "epochs": 12,
@@ -108,6 +111,18 @@ def split_for_calibration(clips: list[str], period: int) -> tuple[list[str], lis
         for i, name in enumerate(names):
             (calibration if i % period == 0 else fit).append(name)
     return fit, calibration
+
+
+def synthetic_scenes(settings: dict[str, Any]) -> list[SceneCrops]:
+    """The synthetic scenes of the ``train`` split to cut crops from (``data.synthetic``); the
+    benchmarks draw theirs from the ``test`` split, whose seeds never meet these."""
+    from gldt_core.sim import presets
+
+    count, scales = int(settings["scenes"]), [float(scale) for scale in settings["scales"]]
+    if count and (not scales or any(not 0 < scale <= 1 for scale in scales)):
+        raise ValueError(f"data.synthetic.scales must be in (0, 1], got {settings['scales']}")
+    specs = presets.split("train", count=count, frames=int(settings["frames"]))
+    return [SceneCrops(spec, scales[index % len(scales)]) for index, spec in enumerate(specs)]
 
 
 def augment(crops: np.ndarray, geometry: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -255,10 +270,18 @@ def train_second_stage(
     global_model = Path(data["global_model"] or DEFAULT_GLOBAL_MODEL)
     local_model = Path(data["local_model"] or DEFAULT_LOCAL_MODEL)
     fit_clips, calibration_clips = split_for_calibration(halmstad_split(root)["train"], int(data["calibration_period"]))
+    scenes = synthetic_scenes(data["synthetic"])
     crops = build_crops(
-        root, fit_clips + calibration_clips, spec, Path(data["cache_dir"]), global_model, local_model, progress
+        root,
+        fit_clips + calibration_clips,
+        spec,
+        Path(data["cache_dir"]),
+        global_model,
+        local_model,
+        progress,
+        scenes=scenes,
     )
-    is_fit = np.isin(np.asarray(crops.clip_names)[crops.clips], fit_clips)
+    is_fit = np.isin(np.asarray(crops.clip_names)[crops.clips], fit_clips + [scene.name for scene in scenes])
     fit_set, calibration_set = crops.subset(is_fit), crops.subset(~is_fit)
 
     fitted = fit_classifier(config, fit_set, calibration_set, out, checkpoint, progress)
@@ -277,6 +300,7 @@ def train_second_stage(
             "config": config,
             "crop_spec": asdict(spec),
             "fit_clips": fit_clips,
+            "fit_scenes": [scene.name for scene in scenes],
             "calibration_clips": calibration_clips,
             "crops": {"fit": len(fit_set), "calibration": len(calibration_set)},
             "candidate_models": [global_model.name, local_model.name],

@@ -75,6 +75,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "--worst", type=int, default=5, help="also list this many slowest frames stage by stage (0: none)"
     )
+    parser.add_argument(
+        "--live",
+        action="store_true",
+        help="replay at the bag's own rate (pipeline --rate 1) instead of --lockstep: where a live frame's time goes, "
+        "and which stage its slowest frames waited on",
+    )
     parser.add_argument("pipeline_args", nargs="*", help="more `pipeline` arguments (after --)")
     args = parser.parse_args(argv)
 
@@ -122,7 +128,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     executor = SingleThreadedExecutor()
     executor.add_node(probe)
     spinner = start_spin_thread(executor)
-    summary = graph_run(args.bag, ["--lockstep", *args.pipeline_args])  # exits naming what failed
+    pacing = ["--rate", "1"] if args.live else ["--lockstep"]
+    summary = graph_run(args.bag, [*pacing, *args.pipeline_args])  # exits naming what failed
     with lock:
         camera = next((t for t in CAMERA_TOPICS if any(t in times for times in arrivals.values())), None)
         if camera is None:

@@ -60,7 +60,7 @@ from gldt_ros.interface.graph_links import (
 )
 from gldt_ros.launcher.bag_io import message_class
 from gldt_ros.launcher.heartbeat import Heartbeats
-from gldt_ros.runtime.node_base import STATUS_NAME_PREFIX
+from gldt_ros.runtime.node_base import STATUS_NAME_PREFIX, freeze_start_up_objects
 
 #: Subscriptions each node creates last, once its models and state are ready: the graph is up when
 #: every one of them is matched (node names alone appear before a node finished starting).
@@ -555,6 +555,7 @@ class GraphDriver(Node):
             if not stop.is_set():  # stamped 1 s before the first frame (restamped as the replay will be)
                 warm_up_ns = Restamp(first_image_ns, keep_stamps).stamp_ns(first_image_ns) - 1_000_000_000
                 self.warm_up(first_image, warm_up_ns, stop)
+        freeze_start_up_objects()  # the player and recorder are paced: no collector pause mid-replay
         restamp = Restamp(first_image_ns, keep=keep_stamps)
         camera_info_sent = False
         start_wall = time.monotonic()

@@ -31,6 +31,7 @@ profile, stack dumps, bounded teardown) and spins the node.
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 import time
@@ -345,6 +346,16 @@ def _descriptor(spec: ParamSpec) -> ParameterDescriptor:
     return descriptor
 
 
+def freeze_start_up_objects() -> None:
+    """Move every object alive after start-up (modules, models, nodes) out of the garbage
+    collector's reach (:func:`gc.freeze`). A full collection otherwise walks all of them, 15-70 ms
+    on a small CPU with every thread of the process held meanwhile, and one such pause inside a
+    frame shows in the live replay's p99 (docs/experiment-log.md, 2026-12-06). Objects made per
+    frame are still collected."""
+    gc.collect()
+    gc.freeze()
+
+
 def run_node(node_factory: Callable[[], Node], args: list[str] | None = None, publishes_frames: bool = False) -> int:
     """Standard ``main``: init, spin until Ctrl-C or shutdown, clean up; returns an exit code.
 
@@ -388,6 +399,7 @@ def run_nodes(
     try:
         for factory in node_factories:
             nodes.append(factory())
+        freeze_start_up_objects()
         for node in nodes:
             print(f"[gldt] {node.get_name()} ready", flush=True)
         spin_nodes(nodes, executor)
