@@ -3,13 +3,13 @@
 Usage: ``python -m gldt_ros.bench.hops [--bag BAG] [-- PIPELINE_ARGS ...]`` (with the workspace on
 the paths, e.g. ``scripts/with_ros_env.sh python -m gldt_ros.bench.hops``).
 
-It replays the bag through ``pipeline --lockstep`` while a probe node in this process subscribes to
-the camera topic and to every small message of a frame's chain (tick, predictions, scheduler
-decision, detections, tracks) and notes when each arrives, keyed by the camera stamp all of them
-copy. The frame pairs and ROI crops are left out on purpose: a probe decoding them would compete
-for the two cores with the detector that is timed. Per mode (GD and LD frames apart) it prints the
-median time between consecutive arrivals, the detectors' own ``processing_time`` and the total
-from camera to tracks. The chain is:
+It replays the bag through ``pipeline --lockstep`` (``--live``: at the bag's own rate) while a probe
+node in this process subscribes to the camera topic and to every small message of a frame's chain
+(tick, predictions, scheduler decision, detections, tracks) and notes when each arrives, keyed by
+the camera stamp all of them copy. The frame pairs and ROI crops are left out on purpose: a probe
+decoding them would compete for the two cores with the detector that is timed. Per mode (GD and LD
+frames apart) it prints the median time between consecutive arrivals, the detectors' own
+``processing_time`` and the total from camera to tracks. The chain is:
 
     camera -> frame_pair_buffer -(tick)-> jptrack_tracker -(predictions)-> mode_scheduler
       -(decision)-> frame_pair_buffer -(pair | crops)-> detector -(detections)-> jptrack_tracker -> tracks
