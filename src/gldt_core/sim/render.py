@@ -130,6 +130,24 @@ class SceneRenderer:
         for frame in range(self.spec.frames):
             yield self.render_with_truth(frame)
 
+    def sampled_pairs(
+        self, frame_step: int, scale: float = 1.0
+    ) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+        """``(t, previous, current, rows)`` for every ``frame_step``-th frame ``t`` from 1: the frame
+        and the one before it, resized by ``scale`` (area interpolation), and the frame's MOT rows
+        ``(K, 10)`` with their pixel columns (x, y, w, h) scaled alike. For training and crops."""
+        width, height = self.spec.size
+        size = (int(round(width * scale)), int(round(height * scale)))
+        for t in range(1, self.spec.frames, frame_step):
+            previous = self.render(t - 1)
+            current, rows = self.render_with_truth(t)
+            rows = np.asarray(rows, dtype=np.float64).reshape(-1, 10).copy()
+            if scale != 1.0:
+                previous = cv2.resize(previous, size, interpolation=cv2.INTER_AREA)
+                current = cv2.resize(current, size, interpolation=cv2.INTER_AREA)
+                rows[:, 2:6] *= scale
+            yield t, previous, current, rows
+
     # -- drawing -------------------------------------------------------------------------------
     def _screen_velocity(self, state: ObjectState, camera: np.ndarray) -> np.ndarray:
         """Image motion of the object during the frame (px/frame), ego-motion included; ``camera``

@@ -238,19 +238,10 @@ class SceneCrops:
 def scene_frames(item: SceneCrops, frame_step: int) -> Iterator[SampledFrame]:
     """Every ``frame_step``-th frame of a synthetic scene (from its second), rendered, resized by
     ``item.scale``, with the frame before it and its drones and birds."""
-    import cv2
-
     from gldt_core.sim import SceneRenderer
 
-    renderer = SceneRenderer(item.scene)
-    width, height = item.scene.size
-    size = (int(round(width * item.scale)), int(round(height * item.scale)))
-    for t in range(1, item.scene.frames, frame_step):
-        previous = cv2.resize(renderer.render(t - 1), size, interpolation=cv2.INTER_AREA)
-        frame, rows = renderer.render_with_truth(t)
-        frame = cv2.resize(frame, size, interpolation=cv2.INTER_AREA)
-        rows = np.asarray(rows, dtype=np.float64).reshape(-1, 10)
-        boxes = np.concatenate([rows[:, 2:4], rows[:, 2:4] + rows[:, 4:6]], axis=1) * item.scale
+    for _, previous, frame, rows in SceneRenderer(item.scene).sampled_pairs(frame_step, item.scale):
+        boxes = np.concatenate([rows[:, 2:4], rows[:, 2:4] + rows[:, 4:6]], axis=1)
         yield previous, frame, boxes, rows[:, 7].astype(np.int64)
 
 

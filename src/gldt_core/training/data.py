@@ -192,25 +192,11 @@ class _SceneLoader:
     def __call__(self, spec: SceneSpec) -> list[FramePair]:
         from gldt_core.sim import SceneRenderer
 
-        scale = self.scale
-        renderer = SceneRenderer(spec)
         pairs: list[FramePair] = []
-        for t in range(1, spec.frames, self.frame_step):
-            previous = renderer.render(t - 1)
-            current, rows = renderer.render_with_truth(t)
-            if scale != 1.0:
-                size = (int(round(current.shape[1] * scale)), int(round(current.shape[0] * scale)))
-                previous = cv2.resize(previous, size, interpolation=cv2.INTER_AREA)
-                current = cv2.resize(current, size, interpolation=cv2.INTER_AREA)
+        for t, previous, current, rows in SceneRenderer(spec).sampled_pairs(self.frame_step, self.scale):
             boxes = [
-                [
-                    MOT_CLASS_TO_INDEX.get(int(r[7]), 0),
-                    r[2] * scale,
-                    r[3] * scale,
-                    (r[2] + r[4]) * scale,
-                    (r[3] + r[5]) * scale,
-                ]
-                for r in np.asarray(rows).reshape(-1, 10)
+                [MOT_CLASS_TO_INDEX.get(int(r[7]), 0), r[2], r[3], r[2] + r[4], r[3] + r[5]]
+                for r in rows
                 if int(r[7]) in MOT_CLASS_TO_INDEX
             ]
             pairs.append(
