@@ -129,6 +129,13 @@ class PlannerStream:
         ]
         return self._publish(live, entries)
 
+    def absorb(self, matched_rows: np.ndarray, detections: np.ndarray, probabilities: np.ndarray) -> None:
+        """Take the class evidence of a frame whose answer was already published (by prediction, at
+        a deadline) when its detections came: the tracker was updated with them, nothing is
+        published for them, and the next frame's entries show the tracks as they are now (ids
+        ended meanwhile close there, ids born meanwhile open there)."""
+        self.class_evidence.update(matched_rows, detections, probabilities)
+
     def predicted(self, tracks: Sequence[Track], t: float, camera: CameraModel | None = None) -> list[PlannerTrack]:
         """The entries of a frame at ``t`` that no detector measured: every live track of the
         tracker (which was not updated) at its filter's prediction for ``t``, box, velocity and

@@ -8,12 +8,16 @@ OUT.mcap``, and judges the recording alone, not what ``pipeline`` printed:
 
 - frames answered: distinct ``frame_index`` of the recorded ``TrackArray`` against the images in
   the bag, and of them the ones answered by prediction (``SOURCE_PREDICTED``: frames the graph
-  skipped by plan while the global detector was busy; ``SOURCE_UNREADABLE``: undecodable images);
+  skipped by plan while the global detector was busy; ``SOURCE_LATE``: frames whose detections had
+  not come by the tracker's ``answer_deadline``; ``SOURCE_UNREADABLE``: undecodable images);
 - camera-to-tracks latency: each ``TrackArray``'s recording time minus its header stamp, which
   the player set to the moment it published the frame (``pipeline`` restamps to the replay's
   wall clock);
+- what the degradation cost: MOTA and IDF1 of the recorded tracks against the bag's ground truth
+  (drones), beside the offline run's (``gldt run --bag``: every frame measured, no clock) on the
+  same bag and ground truth;
 - its peers, measured in the same run: the bag's own frame count and frame period (an answer
-  later than one period means the graph is behind the camera).
+  later than one period means the graph is behind the camera), and the offline run above.
 
 The default bags are the two sample bags and a bag made with ``gldt bag`` from ``--clip`` (by
 default the first drone clip of the ``val_b`` split, which no tuning saw). The report gives each
@@ -41,14 +45,51 @@ from gldt_core.paths import REPO_ROOT
 from gldt_ros.bench.graph import pipeline_replay
 
 SAMPLE_BAGS = (REPO_ROOT / "bags" / "halmstad_v_drone_001", REPO_ROOT / "bags" / "synth_1080p_multi_uav")
-#: ``TrackArray.SOURCE_PREDICTED`` and ``SOURCE_UNREADABLE``: answers no detector measured (read
-#: from the bytes, so this module needs no message package).
-PREDICTED_SOURCES = (2, 3)
+#: ``TrackArray.SOURCE_PREDICTED``, ``SOURCE_UNREADABLE`` and ``SOURCE_LATE``: answers no detector
+#: measured (read from the bytes, so this module needs no message package); the late ones apart.
+PREDICTED_SOURCES = (2, 3, 4)
+LATE_SOURCE = 4
 #: The issue's goals: share of frames answered, p99 camera-to-tracks latency [ms].
 ANSWERED_GOAL = 0.99
 P99_GOAL_MS = 100.0
 #: Frames of the clip made into a bag (10 s at 30 Hz).
 CLIP_FRAMES = 300
+
+
+@dataclass(frozen=True)
+class Tracking:
+    """MOTA and IDF1 (drones, in %) of a run's tracks against a bag's ground truth."""
+
+    mota: float
+    idf1: float
+
+    def __str__(self) -> str:
+        return f"{self.mota:.1f} / {self.idf1:.1f}"
+
+
+def tracking_scores(ground_truth: np.ndarray | None, rows: np.ndarray) -> Tracking | None:
+    """:class:`Tracking` of MOT ``rows`` against ``ground_truth`` (None for a bag without any drone in it)."""
+    from gldt_core.eval.mot_metrics import evaluate_sequence
+
+    if ground_truth is None:
+        return None
+    drones = ground_truth[ground_truth[:, 7] == 1]
+    if not len(drones):
+        return None
+    metrics = evaluate_sequence(drones, rows)
+    return Tracking(100 * metrics["MOTA"], 100 * metrics["IDF1"])
+
+
+def offline_reference(bag: Path) -> tuple[np.ndarray | None, Tracking | None]:
+    """The bag's ground truth (None without) and the peer's :class:`Tracking`: ``gldt run --bag``'s
+    tracks, every frame measured, no clock."""
+    from gldt_core.io.sources import open_source
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import GLDTSystem
+    from gldt_core.system.runner import run_frames
+
+    result = run_frames(GLDTSystem(load_config(None)), open_source(str(bag)), collect_ground_truth=True)
+    return result.ground_truth, tracking_scores(result.ground_truth, result.rows)
 
 
 @dataclass(frozen=True)
@@ -59,11 +100,13 @@ class LiveRun:
     frames: int  # images in the bag
     frame_period_ms: float  # the bag's median frame interval
     answered: int  # frames with a recorded TrackArray
-    predicted: int  # of them, answered by prediction (skipped by plan)
+    predicted: int  # of them, answered by prediction (skipped by plan, or at the tracker's deadline)
+    late: int  # of those, answered at the tracker's deadline
     p50_ms: float
     p99_ms: float
     max_ms: float
     exit_status: int
+    tracking: Tracking | None  # against the bag's ground truth, if it has one
 
     @property
     def answered_share(self) -> float:
@@ -87,8 +130,9 @@ def bag_frames(bag: Path) -> tuple[int, float]:
     return len(times), period
 
 
-def judge_recording(record: Path) -> tuple[int, int, np.ndarray]:
-    """``(frames answered, of them by prediction, latencies [ms])`` of a ``pipeline --record`` file."""
+def judge_recording(record: Path) -> tuple[int, int, int, np.ndarray]:
+    """``(frames answered, of them by prediction, of those at the deadline, latencies [ms])`` of a
+    ``pipeline --record`` file."""
     answered: dict[int, int] = {}
     latencies = []
     for message in read_mcap(record):
@@ -100,11 +144,14 @@ def judge_recording(record: Path) -> tuple[int, int, np.ndarray]:
         answered[frame_index] = source
         latencies.append((message.log_time_ns - header_stamp_ns(message.data)) / 1e6)
     predicted = sum(source in PREDICTED_SOURCES for source in answered.values())
-    return len(answered), predicted, np.asarray(latencies, dtype=np.float64)
+    late = sum(source == LATE_SOURCE for source in answered.values())
+    return len(answered), predicted, late, np.asarray(latencies, dtype=np.float64)
 
 
-def live_run(bag: Path, rate: float, workdir: Path, extra: list[str]) -> LiveRun:
-    """Run the user's command on ``bag`` and judge its recording."""
+def live_run(bag: Path, rate: float, workdir: Path, extra: list[str], ground_truth: np.ndarray | None) -> LiveRun:
+    """Run the user's command on ``bag`` and judge its recording (its tracks against ``ground_truth``)."""
+    from gldt_core.io.recording import recorded_track_rows
+
     record = workdir / f"{bag.name}.mcap"
     record.unlink(missing_ok=True)
     arguments = ["--rate", f"{rate:g}", "--record", str(record), *extra]
@@ -113,9 +160,12 @@ def live_run(bag: Path, rate: float, workdir: Path, extra: list[str]) -> LiveRun
     if not record.exists():
         raise SystemExit(f"bench live: pipeline wrote no recording {record}")
     frames, period = bag_frames(bag)
-    answered, predicted, latencies = judge_recording(record)
+    answered, predicted, late, latencies = judge_recording(record)
     p50, p99, worst = np.percentile(latencies, [50, 99, 100]) if len(latencies) else (np.nan,) * 3
-    return LiveRun(bag.name, frames, period, answered, predicted, float(p50), float(p99), float(worst), status)
+    tracking = tracking_scores(ground_truth, recorded_track_rows(record))
+    return LiveRun(
+        bag.name, frames, period, answered, predicted, late, float(p50), float(p99), float(worst), status, tracking
+    )
 
 
 def clip_bag(clip: str, workdir: Path) -> Path:
@@ -143,10 +193,11 @@ def default_clip() -> str | None:
     return clips[0] if clips else None
 
 
-def report(runs: list[LiveRun]) -> str:
+def report(runs: list[LiveRun], offline: dict[str, Tracking | None]) -> str:
     lines = [
-        "| bag | run | answered / frames | by prediction | p50 ms | p99 ms | max ms | frame period ms | exit |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| bag | run | answered / frames | by prediction (at the deadline) | p50 ms | p99 ms | max ms "
+        "| frame period ms | MOTA / IDF1 (offline) | exit |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     worst: dict[str, LiveRun] = {}
     counts: dict[str, int] = {}
@@ -154,8 +205,8 @@ def report(runs: list[LiveRun]) -> str:
         counts[run.bag] = counts.get(run.bag, 0) + 1
         lines.append(
             f"| {run.bag} | {counts[run.bag]} | {run.answered}/{run.frames} ({100 * run.answered_share:.1f} %) | "
-            f"{run.predicted} | {run.p50_ms:.0f} | {run.p99_ms:.0f} | {run.max_ms:.0f} | {run.frame_period_ms:.1f} | "
-            f"{run.exit_status} |"
+            f"{run.predicted} ({run.late}) | {run.p50_ms:.0f} | {run.p99_ms:.0f} | {run.max_ms:.0f} | "
+            f"{run.frame_period_ms:.1f} | {run.tracking or '-'} ({offline.get(run.bag) or '-'}) | {run.exit_status} |"
         )
         held = worst.get(run.bag)
         if held is None or (run.answered_share, -run.p99_ms) < (held.answered_share, -held.p99_ms):
@@ -165,9 +216,19 @@ def report(runs: list[LiveRun]) -> str:
     for bag, run in worst.items():
         verdict = "met" if run.meets_goals else "MISSED"
         lines.append(
-            f"- {bag}: {100 * run.answered_share:.1f} % answered ({run.predicted} by prediction), "
-            f"p99 {run.p99_ms:.0f} ms = x{run.p99_ms / run.frame_period_ms:.1f} the frame period: {verdict}"
+            f"- {bag}: {100 * run.answered_share:.1f} % answered ({run.predicted} by prediction, {run.late} of them "
+            f"at the deadline), p99 {run.p99_ms:.0f} ms = x{run.p99_ms / run.frame_period_ms:.1f} the frame period: "
+            f"{verdict}"
         )
+    scored = [run for run in runs if run.tracking is not None and offline.get(run.bag) is not None]
+    if scored:
+        lines.append(
+            "Tracks against the bags' ground truth, worst run (drones, MOTA / IDF1; offline, every frame measured):"
+        )
+        for bag in dict.fromkeys(run.bag for run in scored):
+            bag_runs = [run for run in scored if run.bag == bag]
+            low = min(bag_runs, key=lambda run: run.tracking.mota if run.tracking else 0.0)
+            lines.append(f"- {bag}: {low.tracking} live, {offline[bag]} offline")
     return "\n".join(lines)
 
 
@@ -189,11 +250,12 @@ def main(argv: list[str] | None = None) -> int:
         bags = list(args.bag or SAMPLE_BAGS)
         clips = args.clip if args.clip is not None else ([] if args.bag else [c for c in [default_clip()] if c])
         bags += [clip_bag(clip, workdir) for clip in clips]
+        references = {bag.name: offline_reference(bag) for bag in bags}
         runs = []
         for _ in range(args.runs):
             for bag in bags:  # alternated, so a slow minute of the machine hits every bag
-                runs.append(live_run(bag, args.rate, workdir, extra))
-    print(report(runs))
+                runs.append(live_run(bag, args.rate, workdir, extra, references[bag.name][0]))
+    print(report(runs, {name: tracking for name, (_, tracking) in references.items()}))
     return 0
 
 

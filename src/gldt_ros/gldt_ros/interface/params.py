@@ -214,6 +214,16 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
             0.01,
             60.0,
         ),
+        ParamSpec(
+            "answer_deadline",
+            0.075,
+            "Seconds after its capture (its stamp, on this node's clock; else after its tick) by which every "
+            "frame is answered: one whose detections have not come "
+            "by then is answered with the tracks' predictions (TrackArray.SOURCE_LATE), and its detections "
+            "still update the tracks, unpublished, when they come; 0 = wait for them (lockstep)",
+            0.0,
+            60.0,
+        ),
         _DIAG_PERIOD,
     ),
 }

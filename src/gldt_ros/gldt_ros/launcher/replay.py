@@ -205,8 +205,9 @@ def loss_reason(
 ) -> str | None:
     """One line saying why a replay lost frames or left them unanswered, or ``None`` when it did
     neither (``pipeline`` then exits 0, else :data:`LOST_FRAMES_EXIT`). Frames skipped by plan
-    (answered by prediction while the global detector was busy) are the documented degradation,
-    not a loss; ``undecodable`` images, answered the same way, are."""
+    (answered by prediction while the global detector was busy) and frames answered by prediction
+    at the tracker's ``answer_deadline`` are the documented degradation, not a loss;
+    ``undecodable`` images, answered the same way, are."""
     reasons = []
     if unreadable:
         reasons.append(f"{unreadable} unreadable bag message(s) skipped ({unreadable_frames} of them frames)")
@@ -293,7 +294,8 @@ class GraphDriver(Node):
         self._answered_cv = threading.Condition()
         self.tracks_received = 0
         #: Frames this player sent that ``/gldt/tracks`` answered (a paced replay's loss count), and
-        #: how many of them by each ``TrackArray.source`` (``SOURCE_PREDICTED``: skipped by plan).
+        #: how many of them by each ``TrackArray.source`` (``SOURCE_PREDICTED``: skipped by plan;
+        #: ``SOURCE_LATE``: answered at the tracker's deadline).
         self.frames_answered = 0
         self.frames_by_source: dict[int, int] = {}
         self._warm_up_answered = False
@@ -659,10 +661,12 @@ class GraphDriver(Node):
                 rate += f"; the player could not keep x{self.args.rate:g} the bag's pace"
         skipped = self.frames_by_source.get(TrackArray.SOURCE_PREDICTED, 0)
         undecodable = self.frames_by_source.get(TrackArray.SOURCE_UNREADABLE, 0)
+        late = self.frames_by_source.get(TrackArray.SOURCE_LATE, 0)
         predicted = ", ".join(
             text
             for count, text in (
                 (skipped, f"{skipped} skipped by plan while the global detector was busy"),
+                (late, f"{late} at the tracker's answer_deadline, their detections still to come"),
                 (undecodable, f"{undecodable} undecodable"),
             )
             if count

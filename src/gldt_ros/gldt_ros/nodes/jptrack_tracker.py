@@ -13,20 +13,32 @@ cannot be used) the node's diagnostics say WARN and bearings are marked invalid;
 A frame that ``frame_pair_buffer`` skipped (``DetectionArray.MODE_SKIPPED``: the global detector
 was still busy; ``MODE_UNREADABLE``: the image could not be decoded) is answered too, with every
 track at its prediction (``TrackArray.SOURCE_PREDICTED`` / ``SOURCE_UNREADABLE``); the tracker is
-not updated, so a skip is never a miss. Frame ticks whose stamp does not advance (a camera or bag
-that went back in time, or repeated a stamp) re-initialise the tracker, as the offline system
-does, and the warm-up frame leaves the tracker as it found it.
+not updated, so a skip is never a miss.
+
+Every frame is answered within ``answer_deadline`` of its capture (its stamp's age on this node's
+clock; of its tick where the stamp is on another clock), in camera order: a frame whose
+detections have not come by then (the global detector ran long on a busy CPU, or an earlier frame's
+detections still hold it back) is answered with the tracks' predictions
+(``TrackArray.SOURCE_LATE``), and its detections, when they come, still update the tracks in camera
+order, without a second answer; the next frame's answer shows their effect. Lockstep replays wait
+instead (``answer_deadline: 0``). Such frames are counted in the diagnostics (``frames_late``).
+
+Frame ticks whose stamp does not advance (a camera or bag that went back in time, or repeated a
+stamp) re-initialise the tracker, as the offline system does, and the warm-up frame leaves the
+tracker as it found it.
 """
 
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from gldt_msgs.msg import DetectionArray, FrameTick, TrackArray, TrackPredictions
 from sensor_msgs.msg import CameraInfo
+from std_msgs.msg import Header
 from visualization_msgs.msg import MarkerArray
 
 from gldt_core.camera import CameraModel
@@ -52,6 +64,16 @@ from gldt_ros.runtime.node_base import GldtNode, run_node
 PENDING_LIMIT = 64
 #: How often a frame that waits for an earlier one's detections is checked against ``input_order_timeout``.
 ORDER_CHECK_PERIOD_S = 0.1
+#: Shortest wait the deadline timer is armed for [s] (a frame already due is answered at once).
+DEADLINE_TIMER_MIN_S = 0.0005
+#: The deadline timer's period while no frame waits [s]. It is pushed this far out rather than
+#: cancelled: rclpy's Python executors raise in their spin thread when a timer they found ready is
+#: cancelled by another callback before they call it.
+DEADLINE_TIMER_IDLE_S = 3600.0
+#: Oldest age [s] of a frame's stamp, on this node's clock when its tick comes, taken as the time
+#: since its capture; a stamp older, or ahead of the clock, is on another clock (a camera's own, a
+#: bag's), and the frame's deadline counts from its tick instead.
+STAMP_AGE_TRUSTED_S = 1.0
 
 #: Skip notices (no detector ran) -> the source of the predicted TrackArray that answers them.
 PREDICTED_SOURCE = {
@@ -61,6 +83,19 @@ PREDICTED_SOURCE = {
 
 #: The diagnostics condition raised while bearings cannot be computed.
 CAMERA_INFO_WARNING = "camera_info"
+#: Diagnostics counter: frames answered by prediction at ``answer_deadline``.
+FRAMES_LATE = "frames_late"
+
+
+@dataclass
+class PendingFrame:
+    """A frame ticked (or whose detections came first) and not processed yet."""
+
+    header: Header
+    frame_index: int
+    since: float  # monotonic time it was captured (see TrackerNode.frame_since)
+    message: DetectionArray | None = None  # its detections (or skip notice), once they came
+    answered: bool = False  # published already, by prediction at the deadline
 
 
 class TrackerNode(GldtNode):
@@ -78,13 +113,18 @@ class TrackerNode(GldtNode):
         self._order = StampOrder()
         self._last_tick_stamp: float | None = None
         self._last_tracked_stamp = Time()  # zero: nothing tracked yet
-        # Frames ticked (or announced) and not answered yet, header stamp [ns] -> (their detections
-        # once they came, when the frame was ticked): answered strictly in stamp order.
-        self._pending: dict[int, tuple[DetectionArray | None, float]] = {}
+        # Frames ticked (or announced) and not processed yet, by header stamp [ns]: processed and
+        # answered strictly in stamp order.
+        self._pending: dict[int, PendingFrame] = {}
         self.order_timeout_s = float(self.param("input_order_timeout"))
-        self._process = self.guarded(self.on_detections, "detections")
+        self.answer_deadline_s = float(self.param("answer_deadline"))
+        self._process = self.guarded(self.process_frame, "detections")
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.on_detections_arrived, qos.RELIABLE)
-        self.create_timer(ORDER_CHECK_PERIOD_S, self._answer_in_order)
+        self._order_timer = self.create_timer(ORDER_CHECK_PERIOD_S, self._answer_in_order)
+        # A timer armed for the next waiting frame's deadline (no polling while none waits).
+        self._deadline_timer = None
+        if self.answer_deadline_s > 0:
+            self._deadline_timer = self.create_timer(DEADLINE_TIMER_IDLE_S, self._answer_in_order)
         self.create_subscription(FrameTick, topics.FRAME_TICKS, self.guarded(self.on_tick, "frame tick"), qos.RELIABLE)
         self.create_subscription(
             CameraInfo,
@@ -131,9 +171,12 @@ class TrackerNode(GldtNode):
             self._pending.clear()
         self._last_tick_stamp = t
         self._check_time(t, tick.frame_index)
-        self._pending[stamp_nanoseconds(tick.header.stamp)] = (None, time.monotonic())
+        stamp = stamp_nanoseconds(tick.header.stamp)
+        if stamp not in self._pending:  # (its detections may have overtaken it)
+            self._pending[stamp] = PendingFrame(tick.header, int(tick.frame_index), self.frame_since(stamp))
         while len(self._pending) > PENDING_LIMIT:
             del self._pending[min(self._pending)]
+        self._arm_deadline_timer()
         predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
         by_id = {int(track.track_id): track for track in self.tracker.tracks}
         messages = []
@@ -153,6 +196,15 @@ class TrackerNode(GldtNode):
             )
         )
 
+    def frame_since(self, stamp_ns: int) -> float:
+        """The monotonic time a frame stamped ``stamp_ns`` was captured, which its ``answer_deadline``
+        counts from: now less its stamp's age on this node's clock, when that age is plausible
+        (:data:`STAMP_AGE_TRUSTED_S`; the frame may have waited behind others on its way here),
+        else now, its tick's arrival."""
+        now = time.monotonic()
+        age = (self.get_clock().now().nanoseconds - stamp_ns) / 1e9
+        return now - age if 0.0 <= age <= STAMP_AGE_TRUSTED_S else now
+
     def _check_time(self, t: float, frame_index: int) -> None:
         """Drop late messages (StaleMessage: logged and counted by ``guarded``); reset the tracker
         when the stream really restarted (:class:`gldt_core.system.stamps.StampOrder`)."""
@@ -168,27 +220,75 @@ class TrackerNode(GldtNode):
         """Detections (or a skip notice) for a frame: processed once every earlier frame ticked
         has been (the global detector, the local detector and the buffer's notices are three
         writers, and one can overtake another), or at once for a frame no earlier one waits for."""
-        self._pending[stamp_nanoseconds(message.header.stamp)] = (message, time.monotonic())
+        stamp = stamp_nanoseconds(message.header.stamp)
+        frame = self._pending.get(stamp)
+        if frame is None:
+            frame = self._pending[stamp] = PendingFrame(
+                message.header, int(message.frame_index), self.frame_since(stamp)
+            )
+        frame.message = message
         self._answer_in_order()
 
     def _answer_in_order(self) -> None:
         """Process the pending frames' detections in stamp order, up to the first frame still
         without them; one that waited ``input_order_timeout`` is given up (a detector restarted, or
-        its queue dropped the pair) and no longer holds the later ones back."""
+        its queue dropped the pair) and no longer holds the later ones back. Then answer, in stamp
+        order, the frames still waiting ``answer_deadline`` after their tick by prediction."""
+        now = time.monotonic()
         while self._pending:
             stamp = min(self._pending)
-            message, since = self._pending[stamp]
-            if message is None:
-                if time.monotonic() - since < self.order_timeout_s:
-                    return
+            frame = self._pending[stamp]
+            if frame.message is None:
+                if now - frame.since < self.order_timeout_s:
+                    break
                 self.warn_throttled("order timeout", f"no detections for the frame stamped {stamp} ns; answering on")
             del self._pending[stamp]
-            if message is not None:
-                self._process(message)
+            if frame.message is not None:
+                self._process(frame)
+        if self._deadline_timer is None:
+            return
+        for stamp in sorted(self._pending):
+            frame = self._pending[stamp]
+            if frame.answered:
+                continue
+            if frame.header.frame_id == WARM_UP_FRAME_ID or now - frame.since < self.answer_deadline_s:
+                break  # the later ones were ticked later still (the warm-up frame waits: it is start-up)
+            frame.answered = True
+            self.count_event(FRAMES_LATE)
+            t = stamp_seconds(frame.header.stamp)
+            late = DetectionArray(header=frame.header, frame_index=frame.frame_index, mode=DetectionArray.MODE_SKIPPED)
+            self._publish(late, TrackArray.SOURCE_LATE, self.stream.predicted(self.tracker.tracks, t, self.camera))
+        self._arm_deadline_timer()
 
-    def on_detections(self, message: DetectionArray) -> None:
+    def _arm_deadline_timer(self) -> None:
+        """Arm the deadline timer for the first frame still unanswered (the warm-up frame has none),
+        or push it out of the way when none waits."""
+        timer = self._deadline_timer
+        if timer is None:
+            return
+        waiting = [
+            frame.since
+            for frame in self._pending.values()
+            if not frame.answered and frame.header.frame_id != WARM_UP_FRAME_ID
+        ]
+        if waiting:
+            remaining = max(min(waiting) + self.answer_deadline_s - time.monotonic(), DEADLINE_TIMER_MIN_S)
+        else:
+            remaining = DEADLINE_TIMER_IDLE_S
+        timer.timer_period_ns = int(remaining * 1e9)
+        timer.reset()
+
+    def process_frame(self, frame: PendingFrame) -> None:
+        if frame.message is not None:
+            self.on_detections(frame.message, answered=frame.answered)
+
+    def on_detections(self, message: DetectionArray, answered: bool = False) -> None:
+        """Update the tracker with a frame's detections and answer it (with predictions for a
+        skip notice); a frame ``answered`` already at the deadline only updates the tracker."""
         t = stamp_seconds(message.header.stamp)
         self._check_time(t, message.frame_index)
+        if answered and message.mode in PREDICTED_SOURCE:
+            return  # answered by prediction already, and a notice updates nothing
         if message.mode in PREDICTED_SOURCE:
             # Not accepted as the newest stamp: an earlier frame's detections still coming count.
             predicted = self.stream.predicted(self.tracker.tracks, t, self.camera)
@@ -204,6 +304,9 @@ class TrackerNode(GldtNode):
         else:
             output = self.tracker.update(detections, t)
         rows = np.asarray(output, dtype=np.float64).reshape(-1, 6)
+        if answered:
+            self.stream.absorb(rows, detections, detection_array_class_probabilities(message))
+            return
         entries = self.stream.step(
             self.tracker.tracks,
             t,
