@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -32,3 +34,28 @@ def test_the_report_gives_each_bags_worst_tracking_beside_the_offline_run() -> N
     text = report([run(95.0), run(91.5)], {"bag": Tracking(98.7, 99.3)})
     assert "10 (4)" in text, "frames by prediction, of them at the deadline"
     assert "- bag: 91.5 / 90.0 live, 98.7 / 99.3 offline" in text
+
+
+@pytest.mark.parametrize("rate", [1.0, 2.0, 0.5])
+def test_latency_counts_from_when_the_player_sent_the_frame_at_any_rate(monkeypatch, rate: float) -> None:
+    """The player stamps frame k with the replay's start plus the bag's time since its first
+    frame, and sends it after that time divided by the rate: answers 10 ms after sending are 10 ms
+    late, whatever the rate (counted from the stamp alone they would be early at rate 2)."""
+    from types import SimpleNamespace
+
+    from gldt_msgs.msg import TrackArray
+    from rclpy.serialization import serialize_message
+
+    from gldt_ros.bench import live
+
+    start, period = 1_700_000_000 * 10**9, 33_333_333
+    messages = []
+    for k in range(20):
+        array = TrackArray(frame_index=k, source=TrackArray.SOURCE_LATE if k == 3 else TrackArray.SOURCE_GLOBAL)
+        array.header.stamp.sec, array.header.stamp.nanosec = divmod(start + k * period, 10**9)
+        sent = start + k * period / rate
+        messages.append(SimpleNamespace(topic="/gldt/tracks", data=serialize_message(array), log_time_ns=sent + 10**7))
+    monkeypatch.setattr(live, "read_mcap", lambda _path: iter(messages))
+    answered, predicted, late, latencies = live.judge_recording(Path("unused.mcap"), rate)
+    assert (answered, predicted, late) == (20, 1, 1)
+    np.testing.assert_allclose(latencies, 10.0, atol=1e-3)

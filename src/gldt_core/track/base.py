@@ -177,6 +177,7 @@ class MultiStageTracker:
                 if tr.state is TrackState.TENTATIVE:  # its filter stays as born (module docstring)
                     tr.kf_t = tr.now_t = t
 
+        dets, rel = self._merge_parts(dets, rel)
         scores = dets[:, 4]
         if self._strict_scores:
             high = (scores > self._t_high).nonzero()[0]
@@ -285,6 +286,13 @@ class MultiStageTracker:
         """Cost ``(len(tracks), len(det_idx))``, the mask of pairs allowed to match and the stage's
         cost limit (see :func:`assign`)."""
         raise NotImplementedError
+
+    def _merge_parts(
+        self, dets: np.ndarray, rel: list[tuple[float, float]]
+    ) -> tuple[np.ndarray, list[tuple[float, float]]]:
+        """Before stage 1, with the tracks predicted to this frame: detections that are parts of
+        one tracked object, merged into one (JPTrack); ByteTrack takes the detections as they come."""
+        return dets, rel
 
     def _recover(
         self,

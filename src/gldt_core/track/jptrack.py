@@ -47,6 +47,14 @@ Table I value is a config field with the paper's default. What the paper leaves 
   1-2 s bursts of misses, while wider gates start to pick clutter (docs/experiment-log.md).
 * The Kalman filter is on ``[cx, cy, w, h]`` with pixel floors under its noise (``kf_*``, see
   :mod:`.kalman`), for small targets on a shaking camera; ByteTrack keeps the reference filter.
+* A large, close drone is sometimes boxed whole and sometimes as two or three parts (body halves,
+  a wing) by the detector. One part then keeps the track and shrinks its box, and another part
+  starts a second track on the same drone; the two ids then take turns on it. So before stage 1,
+  detections that lie inside the predicted box of a confirmed track of at least
+  ``part_merge_min_size_px`` (``sqrt(w h)``), each at most :data:`PART_AREA_MAX` of its area and
+  :data:`PART_INSIDE` inside it, are merged into their union box when that union matches the
+  predicted box clearly better than any one of them (by :data:`PART_IOU_GAIN` IoU). Small targets,
+  the usual case, are never merged: two drones inside one small box are more likely two drones.
 """
 
 from __future__ import annotations
@@ -57,16 +65,31 @@ from dataclasses import dataclass
 import numpy as np
 
 from gldt_core.track.assignment import assign
-from gldt_core.track.base import REATTACHED_RECOVER, MultiStageTracker, iou_pair_cost
+from gldt_core.track.base import OUTPUT_STATES, REATTACHED_RECOVER, MultiStageTracker, iou_pair_cost
 from gldt_core.track.boxes import midpoint
 from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
 from gldt_core.track.kalman import KalmanModel
 from gldt_core.track.pmr import PmrModel, c_time, fit_pmr, floor_variance, mode_density, p_match_many
-from gldt_core.track.state import Track, TrackState, box_row, update_tracks
+from gldt_core.track.state import Track, TrackState, box_row, boxes_xyxy, update_tracks
 
 #: History samples from a track's first this-many updates are not used by PMR (module docstring).
 PMR_SETTLING_HITS = 3
+#: Parts of one tracked object (module docstring): a detection counts as a part of a track's
+#: predicted box when this share of its area lies inside it and its area is at most PART_AREA_MAX
+#: of the box's; parts merge when their union's IoU with the box beats the best part's by PART_IOU_GAIN.
+PART_INSIDE = 0.7
+PART_AREA_MAX = 0.7
+PART_IOU_GAIN = 0.1
+
+
+def _iou_one(a: np.ndarray, b: np.ndarray) -> float:
+    """IoU of two xyxy boxes."""
+    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
+    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
+    inter = w * h
+    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    return float(inter / union) if union > 0 else 0.0
 
 
 def settled_history(track: Track) -> np.ndarray:
@@ -142,8 +165,13 @@ class JPTrackConfig:
     kf_min_std_px: float = 0.5
     kf_centre_process_floor_px: float = 1.5
     kf_birth_velocity_floor_px: float = 2.0
+    # Detections that are parts of one confirmed track at least this large (sqrt(w h), px) merge
+    # into one before association (module docstring); 0 turns it off.
+    part_merge_min_size_px: float = 40.0
 
     def __post_init__(self) -> None:
+        if not self.part_merge_min_size_px >= 0.0:
+            raise ValueError(f"part_merge_min_size_px must be >= 0 (0: off), got {self.part_merge_min_size_px!r}")
         if not self.pmr_size_ratio >= 1.0:
             raise ValueError(
                 f"pmr_size_ratio must be >= 1 (a large value turns the size gate off), got {self.pmr_size_ratio!r}"
@@ -261,6 +289,48 @@ class JPTrack(MultiStageTracker):
         ax, ay = tr.mean_velocity_px_s()
         lx, ly = tr.last_velocity_px_s()
         return (ax / ref, ay / ref), (lx / ref, ly / ref)
+
+    # --- before stage 1: parts of one object -------------------------------------------------
+    def _merge_parts(
+        self, dets: np.ndarray, rel: list[tuple[float, float]]
+    ) -> tuple[np.ndarray, list[tuple[float, float]]]:
+        """Merge the detections that are parts of one large confirmed track into their union box
+        (module docstring), with the best part's score and relative position."""
+        floor = self.config.part_merge_min_size_px
+        if floor <= 0.0 or len(dets) < 2:
+            return dets, rel
+        boxes = boxes_xyxy([tr for tr in self._tracks if tr.state in OUTPUT_STATES])
+        if not len(boxes):
+            return dets, rel
+        box_areas = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
+        large = np.flatnonzero(box_areas >= floor * floor)
+        if not len(large):
+            return dets, rel
+        det_areas = np.maximum((dets[:, 2] - dets[:, 0]) * (dets[:, 3] - dets[:, 1]), 1e-9)
+        scored = dets[:, 4] >= self._t_low
+        taken = np.zeros(len(dets), dtype=bool)
+        merged: list[tuple[np.ndarray, tuple[float, float]]] = []
+        for k in large[np.argsort(-box_areas[large], kind="stable")]:  # the largest first
+            box = boxes[k]
+            inside_w = np.clip(np.minimum(dets[:, 2], box[2]) - np.maximum(dets[:, 0], box[0]), 0.0, None)
+            inside_h = np.clip(np.minimum(dets[:, 3], box[3]) - np.maximum(dets[:, 1], box[1]), 0.0, None)
+            inside = inside_w * inside_h
+            parts = np.flatnonzero(
+                scored & ~taken & (inside >= PART_INSIDE * det_areas) & (det_areas <= PART_AREA_MAX * box_areas[k])
+            )
+            if len(parts) < 2:
+                continue
+            union = np.array([*dets[parts, :2].min(axis=0), *dets[parts, 2:4].max(axis=0)])
+            best_part = float(np.max(inside[parts] / (det_areas[parts] + box_areas[k] - inside[parts])))
+            if _iou_one(union, box) < best_part + PART_IOU_GAIN:
+                continue
+            best = int(parts[np.argmax(dets[parts, 4])])
+            merged.append((np.append(union, dets[best, 4]), rel[best]))
+            taken[parts] = True
+        if not merged:
+            return dets, rel
+        rows = np.vstack([dets[~taken], np.array([row for row, _ in merged])])
+        return rows, [r for r, t in zip(rel, taken.tolist()) if not t] + [r for _, r in merged]
 
     # --- stage 3: PMR -----------------------------------------------------------------------
     def _recover(

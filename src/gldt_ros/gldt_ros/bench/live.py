@@ -10,9 +10,10 @@ OUT.mcap``, and judges the recording alone, not what ``pipeline`` printed:
   the bag, and of them the ones answered by prediction (``SOURCE_PREDICTED``: frames the graph
   skipped by plan while the global detector was busy; ``SOURCE_LATE``: frames whose detections had
   not come by the tracker's ``answer_deadline``; ``SOURCE_UNREADABLE``: undecodable images);
-- camera-to-tracks latency: each ``TrackArray``'s recording time minus its header stamp, which
-  the player set to the moment it published the frame (``pipeline`` restamps to the replay's
-  wall clock);
+- camera-to-tracks latency: each ``TrackArray``'s recording time minus the moment the player
+  published its frame, which ``pipeline`` writes into the header stamp at ``--rate 1`` (it
+  restamps the bag's first frame to the replay's start and keeps the bag's intervals); at another
+  rate R a frame stamped ``s`` went out at ``s0 + (s - s0) / R``, ``s0`` the first frame's stamp;
 - what the degradation cost: MOTA and IDF1 of the recorded tracks against the bag's ground truth
   (drones), beside the offline run's (``gldt run --bag``: every frame measured, no clock) on the
   same bag and ground truth;
@@ -98,7 +99,7 @@ class LiveRun:
 
     bag: str
     frames: int  # images in the bag
-    frame_period_ms: float  # the bag's median frame interval
+    frame_period_ms: float  # the bag's median frame interval over the replay's rate: as the frames were sent
     answered: int  # frames with a recorded TrackArray
     predicted: int  # of them, answered by prediction (skipped by plan, or at the tracker's deadline)
     late: int  # of those, answered at the tracker's deadline
@@ -130,11 +131,11 @@ def bag_frames(bag: Path) -> tuple[int, float]:
     return len(times), period
 
 
-def judge_recording(record: Path) -> tuple[int, int, int, np.ndarray]:
+def judge_recording(record: Path, rate: float = 1.0) -> tuple[int, int, int, np.ndarray]:
     """``(frames answered, of them by prediction, of those at the deadline, latencies [ms])`` of a
-    ``pipeline --record`` file."""
+    ``pipeline --record`` file of a replay at ``rate`` (module docstring)."""
     answered: dict[int, int] = {}
-    latencies = []
+    answers: list[tuple[int, int]] = []  # (recorded at, header stamp) [ns]
     for message in read_mcap(record):
         if not message.topic.endswith(TRACKS_TOPIC_SUFFIX):
             continue
@@ -142,7 +143,9 @@ def judge_recording(record: Path) -> tuple[int, int, int, np.ndarray]:
         if frame_index in answered:
             continue  # a frame answered twice counts once
         answered[frame_index] = source
-        latencies.append((message.log_time_ns - header_stamp_ns(message.data)) / 1e6)
+        answers.append((message.log_time_ns, header_stamp_ns(message.data)))
+    first = min((stamp for _, stamp in answers), default=0)
+    latencies = [(recorded - first - (stamp - first) / rate) / 1e6 for recorded, stamp in answers]
     predicted = sum(source in PREDICTED_SOURCES for source in answered.values())
     late = sum(source == LATE_SOURCE for source in answered.values())
     return len(answered), predicted, late, np.asarray(latencies, dtype=np.float64)
@@ -159,8 +162,9 @@ def live_run(bag: Path, rate: float, workdir: Path, extra: list[str], ground_tru
     print(f"  --bag {bag} {' '.join(arguments)}: exit {status}; {summary}")
     if not record.exists():
         raise SystemExit(f"bench live: pipeline wrote no recording {record}")
-    frames, period = bag_frames(bag)
-    answered, predicted, late, latencies = judge_recording(record)
+    frames, bag_period = bag_frames(bag)
+    period = bag_period / rate  # the interval the player sent the frames at
+    answered, predicted, late, latencies = judge_recording(record, rate)
     p50, p99, worst = np.percentile(latencies, [50, 99, 100]) if len(latencies) else (np.nan,) * 3
     tracking = tracking_scores(ground_truth, recorded_track_rows(record))
     return LiveRun(

@@ -232,8 +232,8 @@ class TrackerNode(GldtNode):
     def _answer_in_order(self) -> None:
         """Process the pending frames' detections in stamp order, up to the first frame still
         without them; one that waited ``input_order_timeout`` is given up (a detector restarted, or
-        its queue dropped the pair) and no longer holds the later ones back. Then answer, in stamp
-        order, the frames still waiting ``answer_deadline`` after their tick by prediction."""
+        its queue dropped the pair) and no longer holds the later ones back. Then answer by
+        prediction, in stamp order, the frames still waiting ``answer_deadline`` after their capture."""
         now = time.monotonic()
         while self._pending:
             stamp = min(self._pending)
@@ -252,7 +252,7 @@ class TrackerNode(GldtNode):
             if frame.answered:
                 continue
             if frame.header.frame_id == WARM_UP_FRAME_ID or now - frame.since < self.answer_deadline_s:
-                break  # the later ones were ticked later still (the warm-up frame waits: it is start-up)
+                break  # the later ones were captured later still (the warm-up frame waits: it is start-up)
             frame.answered = True
             self.count_event(FRAMES_LATE)
             t = stamp_seconds(frame.header.stamp)
@@ -279,6 +279,7 @@ class TrackerNode(GldtNode):
         timer.reset()
 
     def process_frame(self, frame: PendingFrame) -> None:
+        """Process a pending frame's detections, in its turn (``guarded``, as a callback is)."""
         if frame.message is not None:
             self.on_detections(frame.message, answered=frame.answered)
 
