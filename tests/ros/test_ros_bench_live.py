@@ -29,7 +29,7 @@ def test_tracks_are_scored_against_the_drones_of_the_ground_truth() -> None:
 
 def test_the_report_gives_each_bags_worst_tracking_beside_the_offline_run() -> None:
     def run(mota: float) -> LiveRun:
-        return LiveRun("bag", 100, 33.3, 100, 10, 4, 10.0, 80.0, 90.0, 0, Tracking(mota, 90.0))
+        return LiveRun("bag", 100, 33.3, 100, 10, 4, 0, 10.0, 80.0, 90.0, 0, Tracking(mota, 90.0))
 
     text = report([run(95.0), run(91.5)], {"bag": Tracking(98.7, 99.3)})
     assert "10 (4)" in text, "frames by prediction, of them at the deadline"
@@ -37,10 +37,14 @@ def test_the_report_gives_each_bags_worst_tracking_beside_the_offline_run() -> N
 
 
 @pytest.mark.parametrize("rate", [1.0, 2.0, 0.5])
-def test_latency_counts_from_when_the_player_sent_the_frame_at_any_rate(monkeypatch, rate: float) -> None:
+@pytest.mark.parametrize("first_answered", [0, 2])
+def test_latency_counts_from_when_the_player_sent_the_frame_at_any_rate(
+    monkeypatch, rate: float, first_answered: int
+) -> None:
     """The player stamps frame k with the replay's start plus the bag's time since its first
     frame, and sends it after that time divided by the rate: answers 10 ms after sending are 10 ms
-    late, whatever the rate (counted from the stamp alone they would be early at rate 2)."""
+    late, whatever the rate, and whether or not the first frames were answered (counted from the
+    stamp alone they would be early at rate 2). A frame answered twice is counted, once."""
     from types import SimpleNamespace
 
     from gldt_msgs.msg import TrackArray
@@ -49,13 +53,16 @@ def test_latency_counts_from_when_the_player_sent_the_frame_at_any_rate(monkeypa
     from gldt_ros.bench import live
 
     start, period = 1_700_000_000 * 10**9, 33_333_333
+    frames = live.BagFrames(20, period / 1e6, [k * period + (k % 3) * 1000 for k in range(20)])
     messages = []
-    for k in range(20):
+    for k in range(first_answered, 20):
         array = TrackArray(frame_index=k, source=TrackArray.SOURCE_LATE if k == 3 else TrackArray.SOURCE_GLOBAL)
-        array.header.stamp.sec, array.header.stamp.nanosec = divmod(start + k * period, 10**9)
-        sent = start + k * period / rate
-        messages.append(SimpleNamespace(topic="/gldt/tracks", data=serialize_message(array), log_time_ns=sent + 10**7))
+        array.header.stamp.sec, array.header.stamp.nanosec = divmod(start + frames.since_first_ns[k], 10**9)
+        sent = start + frames.since_first_ns[k] / rate
+        message = SimpleNamespace(topic="/gldt/tracks", data=serialize_message(array), log_time_ns=sent + 10**7)
+        messages += [message, message] if k == 5 else [message]
     monkeypatch.setattr(live, "read_mcap", lambda _path: iter(messages))
-    answered, predicted, late, latencies = live.judge_recording(Path("unused.mcap"), rate)
-    assert (answered, predicted, late) == (20, 1, 1)
-    np.testing.assert_allclose(latencies, 10.0, atol=1e-3)
+    judged = live.judge_recording(Path("unused.mcap"), frames, rate)
+    assert (judged.answered, judged.predicted, judged.late) == (20 - first_answered, 1, 1)
+    assert judged.answered_twice == 1
+    np.testing.assert_allclose(judged.latencies_ms, 10.0, atol=1e-3)

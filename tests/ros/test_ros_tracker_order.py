@@ -213,14 +213,18 @@ def test_the_node_answers_at_the_deadline_by_itself(live_tracker: Any, kind: str
     detections never come: not before its deadline, and before the order timeout would give it up."""
     from gldt_msgs.msg import TrackArray
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.experimental import EventsExecutor
+
+    if kind == "events":
+        EventsExecutor = pytest.importorskip("rclpy.experimental", reason="rclpy >= 7.1.4").EventsExecutor
+    else:
+        EventsExecutor = None
 
     answered_at: list[float] = []
     live_tracker.track_publisher.publish = lambda array: (
         answered_at.append(time.monotonic()),
         live_tracker.published.append(array),
     )
-    executor = (EventsExecutor if kind == "events" else SingleThreadedExecutor)(context=live_tracker.context)
+    executor = (EventsExecutor or SingleThreadedExecutor)(context=live_tracker.context)
     executor.add_node(live_tracker)
     live_tracker._order_timer.cancel()  # the deadline timer alone
     try:
@@ -267,3 +271,95 @@ def test_the_deadline_timer_is_never_cancelled(live_tracker: Any) -> None:
     assert timer.time_until_next_call() > 10**9 * 60
     with timer.handle:
         timer.handle.call_timer()  # what the executor does with a timer it found ready
+
+
+def test_detections_of_a_frame_given_up_after_its_deadline_answer_are_not_answered_again(live_tracker: Any) -> None:
+    """Frames answered at the deadline, then given up at input_order_timeout: when their
+    detections come at last, they update the tracker but publish nothing."""
+    from gldt_msgs.msg import DetectionArray, TrackArray
+
+    for index in range(3):
+        tick(live_tracker, index)
+    past_deadline(live_tracker)
+    time.sleep(0.25)  # past input_order_timeout (0.2 s): given up
+    live_tracker._answer_in_order()
+    assert live_tracker._pending == {}
+    for index in range(3):
+        live_tracker.on_detections_arrived(detections(index, DetectionArray.MODE_GLOBAL))
+    assert answers(live_tracker) == [(index, TrackArray.SOURCE_LATE) for index in range(3)]
+    assert live_tracker.tracker.tracks, "their detections still reached the tracker"
+    tick(live_tracker, 3)
+    live_tracker.on_detections_arrived(detections(3, DetectionArray.MODE_GLOBAL))
+    assert answers(live_tracker)[3:] == [(3, TrackArray.SOURCE_GLOBAL)]
+
+
+def test_a_skip_notice_answered_before_its_tick_leaves_no_frame_waiting(live_tracker: Any) -> None:
+    """The notice for frame 1 overtakes frame 1's tick and is answered at once; the tick that
+    follows must not open a second wait for frame 1 (later frames would be answered late)."""
+    from gldt_msgs.msg import DetectionArray, TrackArray
+
+    tick(live_tracker, 0)
+    live_tracker.on_detections_arrived(detections(0, DetectionArray.MODE_GLOBAL))
+    live_tracker.on_detections_arrived(detections(1, DetectionArray.MODE_SKIPPED))
+    tick(live_tracker, 1)
+    tick(live_tracker, 2)
+    live_tracker.on_detections_arrived(detections(2, DetectionArray.MODE_GLOBAL))
+    assert answers(live_tracker) == [
+        (0, TrackArray.SOURCE_GLOBAL),
+        (1, TrackArray.SOURCE_PREDICTED),
+        (2, TrackArray.SOURCE_GLOBAL),
+    ]
+    assert live_tracker._pending == {}
+
+
+def test_the_deadline_timer_waits_for_the_frame_the_answers_wait_on(live_tracker: Any) -> None:
+    """Behind the warm-up frame (no deadline) the timer is not armed to fire at once, again and
+    again, for the frames queued after it."""
+    from gldt_msgs.msg import FrameTick
+
+    from gldt_ros.interface.graph import WARM_UP_FRAME_ID
+
+    warm = header(0)
+    warm.frame_id = WARM_UP_FRAME_ID
+    live_tracker.on_tick(FrameTick(header=warm, frame_index=0, width=640, height=512))
+    tick(live_tracker, 1)
+    past_deadline(live_tracker)
+    assert live_tracker.published == [], "nothing is answered past the warm-up frame"
+    assert live_tracker._deadline_timer.time_until_next_call() > 10**9 * 60
+
+
+def test_a_deadline_past_the_order_timeout_is_refused(context: Any) -> None:
+    with pytest.raises(ValueError, match="answer_deadline"):
+        make_tracker(context, 0.3)  # input_order_timeout is 0.2 s
+
+
+def test_a_deadline_from_arrival_ignores_the_stamp(context: Any) -> None:
+    """A replay at another rate keeps the bag's pace in the stamps: pipeline counts from arrival."""
+    from rclpy.parameter import Parameter
+
+    from gldt_ros.nodes.jptrack_tracker import TrackerNode
+
+    node: Any = TrackerNode(
+        context=context,
+        parameter_overrides=[
+            Parameter("input_order_timeout", value=0.2),
+            Parameter("answer_deadline", value=DEADLINE_S),
+            Parameter("answer_deadline_from", value="arrival"),
+        ],
+    )
+    try:
+        stamp_ns = node.get_clock().now().nanoseconds - int(DEADLINE_S * 1.5e9)  # "captured" past its deadline
+        before = time.monotonic()
+        assert node.frame_since(stamp_ns) >= before
+    finally:
+        node.destroy_node()
+
+
+def test_pipeline_counts_the_deadline_from_arrival_at_another_rate() -> None:
+    from gldt_core.paths import REPO_ROOT
+    from gldt_ros.launcher.pipeline import node_ros_args, parse_args
+
+    bag = str(REPO_ROOT / "bags" / "halmstad_v_drone_001")
+    at_rate_2 = node_ros_args("jptrack_tracker", parse_args(["--bag", bag, "--rate", "2"]))
+    assert "answer_deadline_from:=arrival" in at_rate_2
+    assert "answer_deadline_from:=arrival" not in node_ros_args("jptrack_tracker", parse_args(["--bag", bag]))

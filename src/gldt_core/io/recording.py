@@ -57,7 +57,9 @@ def recorded_track_rows(path: str | os.PathLike[str]) -> np.ndarray:
 
     Only the tracks matched with a detection in their frame, as the tracker's output and the MOT
     files of ``gldt run`` hold them: the coasting and removed entries of the planner's stream
-    (:mod:`gldt_core.track.planner_stream`) are not rows a MOT metric should count.
+    (:mod:`gldt_core.track.planner_stream`) are not rows a MOT metric should count. A frame no
+    detector measured (a live replay's ``SOURCE_PREDICTED`` and ``SOURCE_LATE`` answers) gives the
+    tracks matched in the last measured frame, at their predicted boxes: what a planner was shown.
     ``frame`` is ``frame_index + 1`` (MOTChallenge is 1-based), rows in recording order.
     """
     matched_codes = {STATE_CODES[name] for name in MATCHED_STATES}

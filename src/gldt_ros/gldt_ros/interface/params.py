@@ -224,6 +224,14 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
             0.0,
             60.0,
         ),
+        ParamSpec(
+            "answer_deadline_from",
+            "capture",
+            "Where answer_deadline counts from: the frame's capture (its stamp's age on this node's clock, "
+            "else its tick) or its tick's arrival here (arrival; pipeline sets it for a replay at a --rate "
+            "other than 1, whose stamps keep the bag's pace)",
+            choices=("capture", "arrival"),
+        ),
         _DIAG_PERIOD,
     ),
 }

@@ -300,6 +300,10 @@ def node_ros_args(name: str, args: argparse.Namespace) -> list[str]:
         ros_args += ["-p", f"image_transport:={args.image_transport}"]
     if getattr(args, "bag", None) is not None or args.lockstep:
         ros_args += BAG_OVERRIDES.get(name, [])
+    if name == "jptrack_tracker" and getattr(args, "bag", None) is not None and getattr(args, "rate", 1.0) != 1.0:
+        # The player keeps the bag's intervals in the stamps: at another rate they drift from the
+        # clock, so a frame's deadline counts from its arrival, not from its stamp.
+        ros_args += ["-p", "answer_deadline_from:=arrival"]
     if args.lockstep:
         ros_args += LOCKSTEP_OVERRIDES.get(name, [])
         if name == "mode_scheduler":

@@ -16,7 +16,8 @@ track at its prediction (``TrackArray.SOURCE_PREDICTED`` / ``SOURCE_UNREADABLE``
 not updated, so a skip is never a miss.
 
 Every frame is answered within ``answer_deadline`` of its capture (its stamp's age on this node's
-clock; of its tick where the stamp is on another clock), in camera order: a frame whose
+clock; of its tick where the stamp is on another clock, or with ``answer_deadline_from:
+arrival``), exactly once and in camera order: a frame whose
 detections have not come by then (the global detector ran long on a busy CPU, or an earlier frame's
 detections still hold it back) is answered with the tracks' predictions
 (``TrackArray.SOURCE_LATE``), and its detections, when they come, still update the tracks in camera
@@ -93,9 +94,10 @@ class PendingFrame:
 
     header: Header
     frame_index: int
-    since: float  # monotonic time it was captured (see TrackerNode.frame_since)
+    since: float  # monotonic time it was captured, its deadline's origin (TrackerNode.frame_since)
+    arrived: float  # monotonic time its tick (or its detections) came, the order timeout's origin
     message: DetectionArray | None = None  # its detections (or skip notice), once they came
-    answered: bool = False  # published already, by prediction at the deadline
+    answered: bool = False  # published already (by prediction at the deadline, or long ago)
 
 
 class TrackerNode(GldtNode):
@@ -118,6 +120,15 @@ class TrackerNode(GldtNode):
         self._pending: dict[int, PendingFrame] = {}
         self.order_timeout_s = float(self.param("input_order_timeout"))
         self.answer_deadline_s = float(self.param("answer_deadline"))
+        self.deadline_from_capture = self.param("answer_deadline_from") == "capture"
+        if 0 < self.answer_deadline_s >= self.order_timeout_s:
+            raise ValueError(
+                f"answer_deadline ({self.answer_deadline_s:g} s) must be below input_order_timeout "
+                f"({self.order_timeout_s:g} s), or 0: a frame would be given up before its deadline"
+            )
+        # The stamp of the newest frame answered in this stream: a frame at or before it is never
+        # answered again (its tick or detections may still come: given up, or overtaken).
+        self._answered_through = -1
         self._process = self.guarded(self.process_frame, "detections")
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.on_detections_arrived, qos.RELIABLE)
         self._order_timer = self.create_timer(ORDER_CHECK_PERIOD_S, self._answer_in_order)
@@ -169,11 +180,15 @@ class TrackerNode(GldtNode):
             self.stream.restart()
             self._order.forget()
             self._pending.clear()
+            self._answered_through = -1
         self._last_tick_stamp = t
         self._check_time(t, tick.frame_index)
         stamp = stamp_nanoseconds(tick.header.stamp)
-        if stamp not in self._pending:  # (its detections may have overtaken it)
-            self._pending[stamp] = PendingFrame(tick.header, int(tick.frame_index), self.frame_since(stamp))
+        # (Its detections may have overtaken it; a skip notice may even have been answered already.)
+        if stamp not in self._pending and stamp > self._answered_through:
+            self._pending[stamp] = PendingFrame(
+                tick.header, int(tick.frame_index), self.frame_since(stamp), time.monotonic()
+            )
         while len(self._pending) > PENDING_LIMIT:
             del self._pending[min(self._pending)]
         self._arm_deadline_timer()
@@ -200,8 +215,11 @@ class TrackerNode(GldtNode):
         """The monotonic time a frame stamped ``stamp_ns`` was captured, which its ``answer_deadline``
         counts from: now less its stamp's age on this node's clock, when that age is plausible
         (:data:`STAMP_AGE_TRUSTED_S`; the frame may have waited behind others on its way here),
-        else now, its tick's arrival."""
+        else now, its tick's arrival; always now with ``answer_deadline_from: arrival`` (a replay
+        whose stamps keep the bag's pace at another rate)."""
         now = time.monotonic()
+        if not self.deadline_from_capture:
+            return now
         age = (self.get_clock().now().nanoseconds - stamp_ns) / 1e9
         return now - age if 0.0 <= age <= STAMP_AGE_TRUSTED_S else now
 
@@ -223,9 +241,16 @@ class TrackerNode(GldtNode):
         stamp = stamp_nanoseconds(message.header.stamp)
         frame = self._pending.get(stamp)
         if frame is None:
-            frame = self._pending[stamp] = PendingFrame(
-                message.header, int(message.frame_index), self.frame_since(stamp)
+            # Before its tick, or after the frame was answered and let go (given up, evicted): then
+            # its detections may still update the tracker, in their turn, but it is not answered again.
+            frame = PendingFrame(
+                message.header,
+                int(message.frame_index),
+                self.frame_since(stamp),
+                time.monotonic(),
+                answered=stamp <= self._answered_through,
             )
+            self._pending[stamp] = frame
         frame.message = message
         self._answer_in_order()
 
@@ -239,7 +264,7 @@ class TrackerNode(GldtNode):
             stamp = min(self._pending)
             frame = self._pending[stamp]
             if frame.message is None:
-                if now - frame.since < self.order_timeout_s:
+                if now - frame.arrived < self.order_timeout_s:
                     break
                 self.warn_throttled("order timeout", f"no detections for the frame stamped {stamp} ns; answering on")
             del self._pending[stamp]
@@ -261,18 +286,17 @@ class TrackerNode(GldtNode):
         self._arm_deadline_timer()
 
     def _arm_deadline_timer(self) -> None:
-        """Arm the deadline timer for the first frame still unanswered (the warm-up frame has none),
-        or push it out of the way when none waits."""
+        """Arm the deadline timer for the frame the answers wait on, the first unanswered one in
+        stamp order, or push it out of the way when none waits (or the warm-up frame, which has no
+        deadline, holds the others back)."""
         timer = self._deadline_timer
         if timer is None:
             return
-        waiting = [
-            frame.since
-            for frame in self._pending.values()
-            if not frame.answered and frame.header.frame_id != WARM_UP_FRAME_ID
-        ]
-        if waiting:
-            remaining = max(min(waiting) + self.answer_deadline_s - time.monotonic(), DEADLINE_TIMER_MIN_S)
+        first = next(
+            (self._pending[stamp] for stamp in sorted(self._pending) if not self._pending[stamp].answered), None
+        )
+        if first is not None and first.header.frame_id != WARM_UP_FRAME_ID:
+            remaining = max(first.since + self.answer_deadline_s - time.monotonic(), DEADLINE_TIMER_MIN_S)
         else:
             remaining = DEADLINE_TIMER_IDLE_S
         timer.timer_period_ns = int(remaining * 1e9)
@@ -325,6 +349,7 @@ class TrackerNode(GldtNode):
         tracks = [planner_track_to_msg(entry) for entry in entries]
         array = TrackArray(header=message.header, frame_index=message.frame_index, source=source, tracks=tracks)
         self._last_tracked_stamp = message.header.stamp
+        self._answered_through = max(self._answered_through, stamp_nanoseconds(message.header.stamp))
         self.track_publisher.publish(array)
         if bool(self.param("publish_markers")) and self.marker_publisher.get_subscription_count() > 0:
             self.marker_publisher.publish(markers_for(array))
@@ -335,6 +360,7 @@ class TrackerNode(GldtNode):
             self._last_tick_stamp = None
             self._last_tracked_stamp = Time()
             self._pending.clear()
+            self._answered_through = -1
 
 
 def create_node(cli_args: list[str] | None = None) -> TrackerNode:
