@@ -66,7 +66,7 @@ import numpy as np
 
 from gldt_core.track.assignment import assign
 from gldt_core.track.base import OUTPUT_STATES, REATTACHED_RECOVER, MultiStageTracker, iou_pair_cost
-from gldt_core.track.boxes import midpoint
+from gldt_core.track.boxes import iou, midpoint
 from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
 from gldt_core.track.kalman import KalmanModel
@@ -81,15 +81,6 @@ PMR_SETTLING_HITS = 3
 PART_INSIDE = 0.7
 PART_AREA_MAX = 0.7
 PART_IOU_GAIN = 0.1
-
-
-def _iou_one(a: np.ndarray, b: np.ndarray) -> float:
-    """IoU of two xyxy boxes."""
-    w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = w * h
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
-    return float(inter / union) if union > 0 else 0.0
 
 
 def settled_history(track: Track) -> np.ndarray:
@@ -320,12 +311,12 @@ class JPTrack(MultiStageTracker):
             )
             if len(parts) < 2:
                 continue
-            union = np.array([*dets[parts, :2].min(axis=0), *dets[parts, 2:4].max(axis=0)])
+            union = [*dets[parts, :2].min(axis=0).tolist(), *dets[parts, 2:4].max(axis=0).tolist()]
             best_part = float(np.max(inside[parts] / (det_areas[parts] + box_areas[k] - inside[parts])))
-            if _iou_one(union, box) < best_part + PART_IOU_GAIN:
+            if iou(FLOATS, *union, *box.tolist()) < best_part + PART_IOU_GAIN:
                 continue
             best = int(parts[np.argmax(dets[parts, 4])])
-            merged.append((np.append(union, dets[best, 4]), rel[best]))
+            merged.append((np.array([*union, dets[best, 4]]), rel[best]))
             taken[parts] = True
         if not merged:
             return dets, rel
