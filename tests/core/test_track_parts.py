@@ -64,3 +64,15 @@ def test_bytetrack_keeps_the_reference_behaviour() -> None:
 def test_a_negative_size_floor_is_refused() -> None:
     with pytest.raises(ValueError, match="part_merge_min_size_px"):
         JPTrackConfig(part_merge_min_size_px=-1.0)
+
+
+def test_a_small_drone_crossing_in_front_of_a_large_one_keeps_its_own_track() -> None:
+    """A second, far drone (20x14 px) passes through the large drone's box while the large one is
+    boxed whole: it is one detection inside the track, not a part, so both keep their ids."""
+    frames = []
+    for f in range(60):
+        small_x = 400.0 - 6 * f  # crosses the large drone's box (x 100+2f .. 240+2f) around frames 25-45
+        frames.append(np.vstack([whole(f), [[small_x, 230.0, small_x + 20.0, 244.0, 0.85]]]))
+    outputs = run(JPTrack(JPTrackConfig(image_size=(640, 512))), frames)
+    assert {int(row[4]) for out in outputs for row in out} == {1, 2}, "two drones, two ids through the crossing"
+    assert all(len(out) == 2 for out in outputs[2:]), "both drones are reported on every frame"
