@@ -231,3 +231,30 @@ def test_a_timer_cut_short_by_shutdown_is_a_stop_but_a_runtime_error_before_it_i
     timer.callback()  # the context is down: a stop
     assert len(calls) == 2
     node.destroy_node()
+
+
+def test_a_documented_error_in_a_timer_is_logged_and_counted_and_the_node_goes_on() -> None:
+    """The tracker answers late frames from its deadline timer: a ValueError there must not end
+    the process (a subscription's is logged and counted by ``guarded``; a timer's the same way)."""
+    from gldt_ros.nodes import mode_scheduler
+    from gldt_ros.runtime.node_base import TIMER_ERRORS
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = mode_scheduler.ModeSchedulerNode(context=context)
+    calls: list[int] = []
+
+    def answer_fails() -> None:
+        calls.append(1)
+        raise ValueError("track 3: covariance not finite")
+
+    timer = node.create_timer(3600.0, answer_fails)
+    try:
+        timer.callback()
+        timer.callback()
+        assert len(calls) == 2 and node.events[TIMER_ERRORS] == 2
+        status = node.diagnostics_status()
+        assert "2 timer callback(s) failed" in status.message
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)

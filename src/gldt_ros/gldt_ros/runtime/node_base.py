@@ -72,8 +72,15 @@ STATUS_NAME_PREFIX = "gldt/"
 #: by frame_pair_buffer, which sends the pairs and sees the answers), and inputs dropped as late.
 PAIRS_SKIPPED = "pairs_skipped"
 STALE_DROPPED = "stale_dropped"
+#: Timer callbacks cut short by a documented error (ValueError), logged in one line as a
+#: subscription's are (:meth:`GldtNode.create_timer`).
+TIMER_ERRORS = "timer_errors"
 #: How each counter reads in a WARN status's message.
-_EVENT_TEXT = {PAIRS_SKIPPED: "frame pair(s) skipped", STALE_DROPPED: "stale input(s) dropped"}
+_EVENT_TEXT = {
+    PAIRS_SKIPPED: "frame pair(s) skipped",
+    STALE_DROPPED: "stale input(s) dropped",
+    TIMER_ERRORS: "timer callback(s) failed",
+}
 
 
 class GldtNode(Node):
@@ -172,11 +179,19 @@ class GldtNode(Node):
         """``Node.create_timer`` on the steady clock unless ``clock`` is given (module docstring:
         it keeps running under ``use_sim_time``), whose callback may be cut short by a stop, as
         :meth:`guarded`'s may: every timer of the graph's nodes publishes (diagnostics, links,
-        report timeouts)."""
+        report timeouts, the tracker's answers at its deadline). A documented error (ValueError)
+        is what it is for a subscription too: logged in one line (repeats throttled), counted
+        (:data:`TIMER_ERRORS`), and the node goes on; it does not end the process from the timer."""
+        what = f"timer {getattr(callback, '__name__', 'callback')}"
 
         def stop_tolerant() -> None:
             try:
                 callback()
+            except ValueError as error:
+                self.count_event(TIMER_ERRORS)
+                line = self._error_lines.text_for(what, str(error))
+                if line is not None:
+                    self.get_logger().error(f"{what} failed: {line}")
             except RuntimeError:
                 self._reraise_unless_stopping()
 
