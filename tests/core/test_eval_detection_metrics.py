@@ -105,3 +105,15 @@ def test_error_breakdown_takes_empty_frames_and_checks_lengths() -> None:
     assert out["num_gt"] == 0 and out["fp_background"] == 1 and out["fp_on_object"] == 0
     with pytest.raises(ValueError, match="2 detection lists but 1"):
         error_breakdown([np.zeros((0, 6))] * 2, [np.zeros((0, 4))], 1, 0.25)
+
+
+def test_the_loose_reading_matches_boxes_that_miss_the_annotations_size() -> None:
+    """Detections tight around targets annotated 1.6x as large (IoU 0.39): AP50 0, AP at 0.3 1."""
+    truth = [np.array([[100.0, 100.0, 132.0, 126.0]]), np.array([[300.0, 200.0, 340.0, 232.0]])]
+    tight = []
+    for (x1, y1, x2, y2), score in zip((t[0] for t in truth), (0.9, 0.8)):
+        cx, cy, w, h = (x1 + x2) / 2, (y1 + y2) / 2, (x2 - x1) / 1.6, (y2 - y1) / 1.6
+        tight.append(np.array([[cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2, score]]))
+    summary = detection_summary(tight, truth, loose_iou=0.3)
+    assert summary["ap50"] == 0.0 and summary["ap_loose"] == pytest.approx(1.0)
+    assert "ap_loose" not in detection_summary(tight, truth)

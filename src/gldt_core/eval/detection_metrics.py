@@ -149,18 +149,24 @@ def recall_at_confidence(result: MatchResult, thresholds: np.ndarray) -> np.ndar
     return np.array([(tp_scores >= t).sum() / result.num_gt for t in thresholds])
 
 
-def detection_summary(detections: list[np.ndarray], ground_truths: list[np.ndarray]) -> dict[str, float]:
-    """AP50, AP50:95, AP_small (at IoU 0.5:0.95), PR AUC at IoU 0.5, and the result at IoU 0.5."""
+def detection_summary(
+    detections: list[np.ndarray], ground_truths: list[np.ndarray], loose_iou: float | None = None
+) -> dict[str, float]:
+    """AP50, AP50:95, AP_small (at IoU 0.5:0.95), PR AUC at IoU 0.5, and the result at IoU 0.5;
+    with ``loose_iou`` also ``ap_loose``, the AP at that IoU (for loosely annotated boxes)."""
     ap_all = [average_precision(match(detections, ground_truths, t)) for t in IOU_THRESHOLDS]
     small = [average_precision(match(detections, ground_truths, t, (0.0, SMALL_AREA))) for t in IOU_THRESHOLDS]
     at50 = match(detections, ground_truths, 0.5)
-    return {
+    summary = {
         "ap50": ap_all[0],
         "ap50_95": float(np.mean(ap_all)),
         "ap_small": float(np.mean(small)),
         "pr_auc": pr_auc(at50),
         "num_gt": float(at50.num_gt),
     }
+    if loose_iou is not None:
+        summary["ap_loose"] = average_precision(match(detections, ground_truths, loose_iou))
+    return summary
 
 
 #: Below this IoU a detection is not about a ground truth at all (for :func:`error_breakdown`).

@@ -26,6 +26,12 @@ HOLDOUT_PERIOD = 5
 HOLDOUT_PHASES = {2: "val", 4: "val_b"}
 VALIDATION_SPLITS = tuple(HOLDOUT_PHASES.values())
 DEFAULT_ROOT = halmstad_root()
+#: The match IoU of a second, looser reading of the benchmarks beside the standard 0.5. The
+#: clips' boxes are loose, and their margin varies from clip to clip (a drone of 8 px is
+#: annotated 44x28 px on ``V_DRONE_041``): a box drawn around the drone itself can score IoU < 0.5
+#: against one, and then counts as a miss and a false positive. What a figure gains at this IoU
+#: is the share of its loss that is box size against the annotation; the targets stay at 0.5.
+LOOSE_IOU = 0.3
 
 
 def clip_category(name: str) -> str:
