@@ -76,3 +76,20 @@ def test_a_small_drone_crossing_in_front_of_a_large_one_keeps_its_own_track() ->
     outputs = run(JPTrack(JPTrackConfig(image_size=(640, 512))), frames)
     assert {int(row[4]) for out in outputs for row in out} == {1, 2}, "two drones, two ids through the crossing"
     assert all(len(out) == 2 for out in outputs[2:]), "both drones are reported on every frame"
+
+
+def test_the_merged_box_is_placed_in_its_roi_by_the_unions_centre() -> None:
+    """PMR models where a track sits in its ROI (eq. 16): the merged detection's relative position
+    is its union's centre in the ROI of its best part, not the best part's own centre."""
+    roi = np.array([0.0, 100.0, 400.0, 400.0])
+    tracker = JPTrack(JPTrackConfig(image_size=(640, 512)))
+    for f in range(8):
+        tracker.update(whole(f), f / FPS, rois=roi[None])
+    parts = halves(8)
+    parts[1, 4] = 0.85  # the right half is the best part
+    tracker.update(parts, 8 / FPS, rois=np.vstack([roi, roi]))
+    (track,) = tracker.tracks
+    x_rel, y_rel = track.history[-1][3], track.history[-1][4]
+    union_x, union_y = (parts[0, 0] + parts[1, 2]) / 2, (parts[1, 1] + parts[0, 3]) / 2
+    assert x_rel == pytest.approx((union_x - roi[0]) / (roi[2] - roi[0]))
+    assert y_rel == pytest.approx((union_y - roi[1]) / (roi[3] - roi[1]))

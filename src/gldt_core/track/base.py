@@ -165,7 +165,7 @@ class MultiStageTracker:
         """
         t = validate_time(t, self._last_t, frame)
         dets = validate_detections(dets, t, frame)
-        rel = self._relative_positions(dets, rois, t, frame)
+        rois = self._checked_rois(dets, rois, t, frame)
         self._last_t = t
         first_frame = self._updates == 0
         self._updates += 1
@@ -177,7 +177,8 @@ class MultiStageTracker:
                 if tr.state is TrackState.TENTATIVE:  # its filter stays as born (module docstring)
                     tr.kf_t = tr.now_t = t
 
-        dets, rel = self._merge_parts(dets, rel)
+        dets, rois = self._merge_parts(dets, rois)
+        rel = self._relative_positions(dets, rois, t, frame)
         scores = dets[:, 4]
         if self._strict_scores:
             high = (scores > self._t_high).nonzero()[0]
@@ -287,12 +288,11 @@ class MultiStageTracker:
         cost limit (see :func:`assign`)."""
         raise NotImplementedError
 
-    def _merge_parts(
-        self, dets: np.ndarray, rel: list[tuple[float, float]]
-    ) -> tuple[np.ndarray, list[tuple[float, float]]]:
+    def _merge_parts(self, dets: np.ndarray, rois: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """Before stage 1, with the tracks predicted to this frame: detections that are parts of
-        one tracked object, merged into one (JPTrack); ByteTrack takes the detections as they come."""
-        return dets, rel
+        one tracked object, merged into one (JPTrack), with the ROIs they came from (``rois``,
+        ``(N, 4)`` or None); ByteTrack takes the detections as they come."""
+        return dets, rois
 
     def _recover(
         self,
@@ -343,16 +343,13 @@ class MultiStageTracker:
         if len(dets) == 0:
             return []
         boxes = dets[:, 0], dets[:, 1], dets[:, 2], dets[:, 3]
-        if rois is None:  # the image
+        r = self._checked_rois(dets, rois, t, frame)
+        if r is None:  # the image
             w, h = self._image_size
             if on_floats(len(dets)):
                 return [relative_centre(x1, y1, x2, y2, 0.0, 0.0, w, h) for x1, y1, x2, y2, _ in dets.tolist()]
             x, y = relative_centre(*boxes, 0.0, 0.0, w, h)
             return list(zip(x.tolist(), y.tolist()))
-        r = np.asarray(rois, dtype=np.float64)
-        if r.shape != (len(dets), 4) or not np.all(np.isfinite(r)):
-            where = f"frame {frame}" if frame is not None else f"t={t:.6f} s"
-            raise ValueError(f"{where}: rois must be a finite ({len(dets)}, 4) xyxy array, got shape {r.shape}")
         # A degenerate ROI counts as 1e-9 px wide.
         window = r[:, 0], r[:, 1], np.maximum(r[:, 2] - r[:, 0], 1e-9), np.maximum(r[:, 3] - r[:, 1], 1e-9)
         if on_floats(len(dets)):
@@ -360,6 +357,18 @@ class MultiStageTracker:
             return [relative_centre(*box[:4], *win) for box, win in rows]
         x, y = relative_centre(*boxes, *window)
         return list(zip(x.tolist(), y.tolist()))
+
+    @staticmethod
+    def _checked_rois(dets: np.ndarray, rois: np.ndarray | None, t: float, frame: int | None) -> np.ndarray | None:
+        """``rois`` as a float array, one finite xyxy row per detection (None stays None); else
+        a one-line ValueError naming the frame."""
+        if rois is None:
+            return None
+        r = np.asarray(rois, dtype=np.float64)
+        if r.shape != (len(dets), 4) or not np.all(np.isfinite(r)):
+            where = f"frame {frame}" if frame is not None else f"t={t:.6f} s"
+            raise ValueError(f"{where}: rois must be a finite ({len(dets)}, 4) xyxy array, got shape {r.shape}")
+        return r
 
     def _remove_duplicates(self, tracks: list[Track]) -> list[Track]:
         """The tracks kept at the end of a frame (JPTrack; ByteTrack has the reference's rule): an

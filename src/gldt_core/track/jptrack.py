@@ -282,25 +282,23 @@ class JPTrack(MultiStageTracker):
         return (ax / ref, ay / ref), (lx / ref, ly / ref)
 
     # --- before stage 1: parts of one object -------------------------------------------------
-    def _merge_parts(
-        self, dets: np.ndarray, rel: list[tuple[float, float]]
-    ) -> tuple[np.ndarray, list[tuple[float, float]]]:
+    def _merge_parts(self, dets: np.ndarray, rois: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
         """Merge the detections that are parts of one large confirmed track into their union box
-        (module docstring), with the best part's score and relative position."""
+        (module docstring), with the best part's score and ROI (the union's centre is placed in it)."""
         floor = self.config.part_merge_min_size_px
         if floor <= 0.0 or len(dets) < 2:
-            return dets, rel
+            return dets, rois
         boxes = boxes_xyxy([tr for tr in self._tracks if tr.state in OUTPUT_STATES])
         if not len(boxes):
-            return dets, rel
+            return dets, rois
         box_areas = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
         large = np.flatnonzero(box_areas >= floor * floor)
         if not len(large):
-            return dets, rel
+            return dets, rois
         det_areas = np.maximum((dets[:, 2] - dets[:, 0]) * (dets[:, 3] - dets[:, 1]), 1e-9)
         scored = dets[:, 4] >= self._t_low
         taken = np.zeros(len(dets), dtype=bool)
-        merged: list[tuple[np.ndarray, tuple[float, float]]] = []
+        merged: list[tuple[np.ndarray, int]] = []  # the union row, its best part
         for k in large[np.argsort(-box_areas[large], kind="stable")]:  # the largest first
             box = boxes[k]
             inside_w = np.clip(np.minimum(dets[:, 2], box[2]) - np.maximum(dets[:, 0], box[0]), 0.0, None)
@@ -316,12 +314,14 @@ class JPTrack(MultiStageTracker):
             if iou(FLOATS, *union, *box.tolist()) < best_part + PART_IOU_GAIN:
                 continue
             best = int(parts[np.argmax(dets[parts, 4])])
-            merged.append((np.array([*union, dets[best, 4]]), rel[best]))
+            merged.append((np.array([*union, dets[best, 4]]), best))
             taken[parts] = True
         if not merged:
-            return dets, rel
+            return dets, rois
         rows = np.vstack([dets[~taken], np.array([row for row, _ in merged])])
-        return rows, [r for r, t in zip(rel, taken.tolist()) if not t] + [r for _, r in merged]
+        if rois is None:
+            return rows, None
+        return rows, np.vstack([rois[~taken], rois[[best for _, best in merged]]])
 
     # --- stage 3: PMR -----------------------------------------------------------------------
     def _recover(
