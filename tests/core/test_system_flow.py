@@ -430,9 +430,25 @@ def test_unknown_tracker_params_fail_at_construction():
         GLDTSystem(config, global_detector=GroundTruthGlobal(scene), local_detector=GroundTruthLocal(scene))
 
 
+class ScriptedSequence:
+    """A sequence for the ablation: stamped frames (:func:`stamp_frame`) and the given ground truth."""
+
+    fps = FPS
+
+    def __init__(self, name: str, gt: np.ndarray, frames: int) -> None:
+        self.name, self.gt, self.frames = name, gt, frames
+
+    def __len__(self) -> int:
+        return self.frames
+
+    def __iter__(self):
+        from gldt_core.system.runner import SimpleFrame
+
+        return (SimpleFrame(k, k / FPS, stamp_frame(k)) for k in range(self.frames))
+
+
 def test_ablation_runs_four_variants_on_shared_detectors():
     from gldt_core.bench.ablation import VARIANTS, format_table, run_dataset
-    from gldt_core.system.runner import SimpleFrame
 
     scene = Scene([[200, 300], [1500, 800]], [[4, 1], [-3, 0]])
     frames = 80
@@ -444,22 +460,9 @@ def test_ablation_runs_four_variants_on_shared_detectors():
         ]
     )
 
-    class Sequence:
-        name = "doubles"
-        fps = FPS
-
-        def __init__(self):
-            self.gt = gt
-
-        def __len__(self):
-            return frames
-
-        def __iter__(self):
-            return (SimpleFrame(k, k / FPS, stamp_frame(k)) for k in range(frames))
-
     gd, ld = GroundTruthGlobal(scene), GroundTruthLocal(scene)
     config = SystemConfig(scheduler=SchedulerConfig(n_global=10, n_local=30))
-    rows = run_dataset([Sequence()], config, (gd, ld))
+    rows = run_dataset([ScriptedSequence("doubles", gt, frames)], config, (gd, ld))
     assert [r["variant"] for r in rows] == [v[0] for v in VARIANTS]
     by_name = {r["variant"]: r for r in rows}
     assert by_name["GD+JPTrack"]["gd_share"] == 1.0 and by_name["GD+ByteTrack"]["gd_share"] == 1.0
@@ -493,7 +496,6 @@ def test_ablation_reads_each_row_again_at_a_loose_iou_too():
     false positive, at the loose IoU (0.3) a match; the table says both."""
     from gldt_core.bench.ablation import format_table, run_dataset
     from gldt_core.eval.halmstad_split import LOOSE_IOU
-    from gldt_core.system.runner import SimpleFrame
 
     scene = Scene([[200, 300], [1500, 800]], [[4, 1], [-3, 0]])
     frames = 40
@@ -510,21 +512,9 @@ def test_ablation_reads_each_row_again_at_a_loose_iou_too():
         ]
     )
 
-    class Sequence:
-        name = "loose"
-        fps = FPS
-
-        def __init__(self):
-            self.gt = gt
-
-        def __len__(self):
-            return frames
-
-        def __iter__(self):
-            return (SimpleFrame(k, k / FPS, stamp_frame(k)) for k in range(frames))
-
     config = SystemConfig(scheduler=SchedulerConfig(n_global=10, n_local=30))
-    rows = run_dataset([Sequence()], config, (GroundTruthGlobal(scene), GroundTruthLocal(scene)))
+    sequence = ScriptedSequence("loose", gt, frames)
+    rows = run_dataset([sequence], config, (GroundTruthGlobal(scene), GroundTruthLocal(scene)))
     ours = {r["variant"]: r for r in rows}["GD+LD+JPTrack"]
     assert LOOSE_IOU < 1 / 1.6**2 < 0.5
     assert ours["MOTA"] < 0.0 and ours["FN"] > 0 and ours["FP"] > 0
