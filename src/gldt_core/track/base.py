@@ -177,7 +177,8 @@ class MultiStageTracker:
                 if tr.state is TrackState.TENTATIVE:  # its filter stays as born (module docstring)
                     tr.kf_t = tr.now_t = t
 
-        dets, rois = self._merge_parts(dets, rois)
+        active = [tr for tr in self._tracks if tr.state in OUTPUT_STATES]
+        dets, rois = self._merge_parts(dets, rois, active)
         rel = self._relative_positions(dets, rois, t, frame)
         scores = dets[:, 4]
         if self._strict_scores:
@@ -186,7 +187,6 @@ class MultiStageTracker:
         else:
             high = (scores >= self._t_high).nonzero()[0]  # np.flatnonzero without its wrapper
             low = ((scores >= self._t_low) & (scores < self._t_high)).nonzero()[0]
-        active = [tr for tr in self._tracks if tr.state in OUTPUT_STATES]
         lost = [tr for tr in self._tracks if tr.state is TrackState.LOST]
         tentative = [tr for tr in self._tracks if tr.state is TrackState.TENTATIVE]
         updated: set[int] = set()
@@ -288,10 +288,12 @@ class MultiStageTracker:
         cost limit (see :func:`assign`)."""
         raise NotImplementedError
 
-    def _merge_parts(self, dets: np.ndarray, rois: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-        """Before stage 1, with the tracks predicted to this frame: detections that are parts of
-        one tracked object, merged into one (JPTrack), with the ROIs they came from (``rois``,
-        ``(N, 4)`` or None); ByteTrack takes the detections as they come."""
+    def _merge_parts(
+        self, dets: np.ndarray, rois: np.ndarray | None, active: list[Track]
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Before stage 1, with the ``active`` (confirmed) tracks predicted to this frame:
+        detections that are parts of one tracked object, merged into one (JPTrack), with the ROIs
+        they came from (``rois``, ``(N, 4)`` or None); ByteTrack takes the detections as they come."""
         return dets, rois
 
     def _recover(

@@ -65,7 +65,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from gldt_core.track.assignment import assign
-from gldt_core.track.base import OUTPUT_STATES, REATTACHED_RECOVER, MultiStageTracker, iou_pair_cost
+from gldt_core.track.base import REATTACHED_RECOVER, MultiStageTracker, iou_pair_cost
 from gldt_core.track.boxes import iou, midpoint
 from gldt_core.track.fastpath import ARRAYS, FLOATS, Ops, V, on_floats
 from gldt_core.track.jcma import JcmaWeights, TrackMotion, jcma_cost
@@ -282,13 +282,15 @@ class JPTrack(MultiStageTracker):
         return (ax / ref, ay / ref), (lx / ref, ly / ref)
 
     # --- before stage 1: parts of one object -------------------------------------------------
-    def _merge_parts(self, dets: np.ndarray, rois: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+    def _merge_parts(
+        self, dets: np.ndarray, rois: np.ndarray | None, active: list[Track]
+    ) -> tuple[np.ndarray, np.ndarray | None]:
         """Merge the detections that are parts of one large confirmed track into their union box
         (module docstring), with the best part's score and ROI (the union's centre is placed in it)."""
         floor = self.config.part_merge_min_size_px
         if floor <= 0.0 or len(dets) < 2:
             return dets, rois
-        boxes = boxes_xyxy([tr for tr in self._tracks if tr.state in OUTPUT_STATES])
+        boxes = boxes_xyxy(active)
         if not len(boxes):
             return dets, rois
         box_areas = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
