@@ -191,7 +191,8 @@ class TrackerNode(GldtNode):
             )
         while len(self._pending) > PENDING_LIMIT:
             del self._pending[min(self._pending)]
-        self._arm_deadline_timer()
+        if self._deadline_timer is not None:
+            self._arm_deadline_timer(self._first_unanswered())
         predictions = stable_predictions(self.tracker, t, self.config.lost_frames_kept)
         by_id = {int(track.track_id): track for track in self.tracker.tracks}
         messages = []
@@ -272,29 +273,32 @@ class TrackerNode(GldtNode):
                 self._process(frame)
         if self._deadline_timer is None:
             return
+        waiting = None  # the first frame still unanswered once the due ones are
         for stamp in sorted(self._pending):
             frame = self._pending[stamp]
             if frame.answered:
                 continue
             if frame.header.frame_id == WARM_UP_FRAME_ID or now - frame.since < self.answer_deadline_s:
+                waiting = frame
                 break  # the later ones were captured later still (the warm-up frame waits: it is start-up)
             frame.answered = True
             self.count_event(FRAMES_LATE)
             t = stamp_seconds(frame.header.stamp)
             late = DetectionArray(header=frame.header, frame_index=frame.frame_index, mode=DetectionArray.MODE_SKIPPED)
             self._publish(late, TrackArray.SOURCE_LATE, self.stream.predicted(self.tracker.tracks, t, self.camera))
-        self._arm_deadline_timer()
+        self._arm_deadline_timer(waiting)
 
-    def _arm_deadline_timer(self) -> None:
-        """Arm the deadline timer for the frame the answers wait on, the first unanswered one in
-        stamp order, or push it out of the way when none waits (or the warm-up frame, which has no
-        deadline, holds the others back)."""
+    def _first_unanswered(self) -> PendingFrame | None:
+        """The pending frame the answers wait on: the first unanswered one in stamp order."""
+        return next((frame for _, frame in sorted(self._pending.items()) if not frame.answered), None)
+
+    def _arm_deadline_timer(self, first: PendingFrame | None) -> None:
+        """Arm the deadline timer for ``first``, the frame the answers wait on
+        (:meth:`_first_unanswered`), or push it out of the way when none waits (or the warm-up
+        frame, which has no deadline, holds the others back)."""
         timer = self._deadline_timer
         if timer is None:
             return
-        first = next(
-            (self._pending[stamp] for stamp in sorted(self._pending) if not self._pending[stamp].answered), None
-        )
         if first is not None and first.header.frame_id != WARM_UP_FRAME_ID:
             remaining = max(first.since + self.answer_deadline_s - time.monotonic(), DEADLINE_TIMER_MIN_S)
         else:
