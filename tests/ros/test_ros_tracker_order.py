@@ -328,6 +328,49 @@ def test_the_deadline_timer_waits_for_the_frame_the_answers_wait_on(live_tracker
     assert live_tracker._deadline_timer.time_until_next_call() > 10**9 * 60
 
 
+def restarted_header(index: int) -> Any:
+    """Frame ``index``'s header in a stream that restarted at frame 5 with its clock back at 0 s."""
+    stamped = header(index)
+    stamped.stamp.sec, stamped.stamp.nanosec = 0, (index - 5) * 33_333_333
+    return stamped
+
+
+@pytest.mark.parametrize("deadline_s", [0.0, DEADLINE_S])
+def test_an_earlier_streams_late_detections_do_not_reach_the_restarted_one(context: Any, deadline_s: float) -> None:
+    """The camera's time goes back at frame 5 (a bag played again, a driver restarted) while the
+    detections of frames 3 and 4 of the stream before are still on their way. When they come they
+    are dropped: they neither update the restarted stream's tracks nor answer a frame, and every
+    frame of the new stream is answered once, in order (the tracks of the stream before close
+    with REMOVED)."""
+    from gldt_msgs.msg import DetectionArray, FrameTick, Track, TrackArray
+
+    node = make_tracker(context, deadline_s)
+    try:
+        for index in range(5):
+            tick(node, index)
+        for index in range(3):
+            node.on_detections_arrived(detections(index, DetectionArray.MODE_GLOBAL))
+        node.published.clear()
+        for index in range(5, 8):
+            node.on_tick(FrameTick(header=restarted_header(index), frame_index=index, width=640, height=512))
+        for index in (3, 4):  # the stream before: stamped 1.1 and 1.13 s, ahead of every new tick
+            node.on_detections_arrived(detections(index, DetectionArray.MODE_GLOBAL))
+        for index in range(5, 10):
+            if index >= 8:
+                node.on_tick(FrameTick(header=restarted_header(index), frame_index=index, width=640, height=512))
+            late = detections(index, DetectionArray.MODE_GLOBAL)
+            late.header = restarted_header(index)
+            late.detections[0].center_x = 500.0 + index  # far from where frames 0-4 had it
+            node.on_detections_arrived(late)
+        assert answers(node) == [(index, TrackArray.SOURCE_GLOBAL) for index in range(5, 10)]
+        live = [track for array in node.published for track in array.tracks if track.state != Track.STATE_REMOVED]
+        assert live and all(track.center_x > 400.0 for track in live), "the stream before moved a track"
+        assert node._pending == {}
+        assert node.events["stale_dropped"] == 2
+    finally:
+        node.destroy_node()
+
+
 def test_a_deadline_past_the_order_timeout_is_refused(context: Any) -> None:
     with pytest.raises(ValueError, match="answer_deadline"):
         make_tracker(context, 0.3)  # input_order_timeout is 0.2 s

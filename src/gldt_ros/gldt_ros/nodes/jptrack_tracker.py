@@ -25,8 +25,10 @@ order, without a second answer; the next frame's answer shows their effect. Lock
 instead (``answer_deadline: 0``). Such frames are counted in the diagnostics (``frames_late``).
 
 Frame ticks whose stamp does not advance (a camera or bag that went back in time, or repeated a
-stamp) re-initialise the tracker, as the offline system does, and the warm-up frame leaves the
-tracker as it found it.
+stamp) re-initialise the tracker, as the offline system does; the detections of the stream before
+that are still on their way (numbered before the restart, stamped ahead of the new stream's ticks)
+are then dropped as stale, so they neither move the new stream's tracks nor answer one of its
+frames. The warm-up frame leaves the tracker as it found it.
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ from visualization_msgs.msg import MarkerArray
 from gldt_core.camera import CameraModel
 from gldt_core.system.config import SystemConfig, TrackerSettings
 from gldt_core.system.gldt_system import accepts_keyword, build_tracker
-from gldt_core.system.stamps import StampOrder
+from gldt_core.system.stamps import StaleMessage, StampOrder
 from gldt_core.system.steps import stable_predictions
 from gldt_core.track.planner_stream import PlannerStream, PlannerTrack
 from gldt_ros.interface import qos, topics
@@ -100,6 +102,21 @@ class PendingFrame:
     answered: bool = False  # published already (by prediction at the deadline, or long ago)
 
 
+@dataclass(frozen=True)
+class StreamRestart:
+    """Where the camera's time went back: the new stream's first frame index and the newest
+    stamp [ns] ticked in the stream before, whose late detections are told apart by these two."""
+
+    first_index: int
+    earlier_newest_ns: int
+
+    def left_over(self, frame_index: int, stamp_ns: int, newest_tick_ns: int) -> bool:
+        """Whether detections for (``frame_index``, ``stamp_ns``) belong to the stream before: numbered
+        before the restart and stamped where the earlier stream was, ahead of the new stream's
+        ticks (detections may overtake their own tick, but not with an earlier number)."""
+        return frame_index < self.first_index and newest_tick_ns < stamp_ns <= self.earlier_newest_ns
+
+
 class TrackerNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("jptrack_tracker", **kwargs)
@@ -114,6 +131,8 @@ class TrackerNode(GldtNode):
         self.set_warning(CAMERA_INFO_WARNING, "no camera_info received yet: bearings invalid")
         self._order = StampOrder()
         self._last_tick_stamp: float | None = None
+        self._newest_tick_ns = -1  # the newest tick's stamp in this stream
+        self._restart: StreamRestart | None = None  # the last time the stream went back, while it matters
         self._last_tracked_stamp = Time()  # zero: nothing tracked yet
         # Frames ticked (or announced) and not processed yet, by header stamp [ns]: processed and
         # answered strictly in stamp order.
@@ -130,6 +149,7 @@ class TrackerNode(GldtNode):
         # answered again (its tick or detections may still come: given up, or overtaken).
         self._answered_through = -1
         self._process = self.guarded(self.process_frame, "detections")
+        self._drop_left_over = self.guarded(self._refuse_left_over, "detections")
         self.create_subscription(DetectionArray, topics.DETECTIONS, self.on_detections_arrived, qos.RELIABLE)
         self._order_timer = self.create_timer(ORDER_CHECK_PERIOD_S, self._answer_in_order)
         # A timer armed for the next waiting frame's deadline (no polling while none waits).
@@ -179,11 +199,17 @@ class TrackerNode(GldtNode):
             self.tracker.reset()
             self.stream.restart()
             self._order.forget()
+            earlier_newest = max([self._newest_tick_ns, *self._pending])
+            self._restart = StreamRestart(int(tick.frame_index), earlier_newest)
             self._pending.clear()
             self._answered_through = -1
+            self._newest_tick_ns = -1
         self._last_tick_stamp = t
         self._check_time(t, tick.frame_index)
         stamp = stamp_nanoseconds(tick.header.stamp)
+        self._newest_tick_ns = max(self._newest_tick_ns, stamp)
+        if self._restart is not None and stamp > self._restart.earlier_newest_ns:
+            self._restart = None  # the new stream is past every stamp of the one before
         # (Its detections may have overtaken it; a skip notice may even have been answered already.)
         if stamp not in self._pending and stamp > self._answered_through:
             self._pending[stamp] = PendingFrame(
@@ -240,6 +266,10 @@ class TrackerNode(GldtNode):
         has been (the global detector, the local detector and the buffer's notices are three
         writers, and one can overtake another), or at once for a frame no earlier one waits for."""
         stamp = stamp_nanoseconds(message.header.stamp)
+        restart = self._restart
+        if restart is not None and restart.left_over(int(message.frame_index), stamp, self._newest_tick_ns):
+            self._drop_left_over(message)
+            return
         frame = self._pending.get(stamp)
         if frame is None:
             # Before its tick, or after the frame was answered and let go (given up, evicted): then
@@ -254,6 +284,14 @@ class TrackerNode(GldtNode):
             self._pending[stamp] = frame
         frame.message = message
         self._answer_in_order()
+
+    def _refuse_left_over(self, message: DetectionArray) -> None:
+        """Raise the :class:`StaleMessage` that ``guarded`` logs and counts for detections of the
+        stream before the last restart (:meth:`StreamRestart.left_over`)."""
+        raise StaleMessage(
+            f"frame {message.frame_index} stamped {stamp_seconds(message.header.stamp):.3f} s belongs to the "
+            "stream before the camera's time went back; stale, dropped"
+        )
 
     def _answer_in_order(self) -> None:
         """Process the pending frames' detections in stamp order, up to the first frame still
@@ -362,6 +400,8 @@ class TrackerNode(GldtNode):
             self.stream = PlannerStream()
             self._order.forget()
             self._last_tick_stamp = None
+            self._newest_tick_ns = -1
+            self._restart = None
             self._last_tracked_stamp = Time()
             self._pending.clear()
             self._answered_through = -1
