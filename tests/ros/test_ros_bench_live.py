@@ -17,12 +17,14 @@ def rows(frames: int, track_id: int, cls: int = 1, shift: float = 0.0) -> np.nda
     )
 
 
-def test_tracks_are_scored_against_the_drones_of_the_ground_truth() -> None:
+def test_tracks_are_scored_against_the_drones_of_the_ground_truth_with_birds_as_distractors() -> None:
     drone, bird = rows(20, 1), rows(20, 2, cls=2, shift=300.0)
     truth = np.vstack([drone, bird])
     assert tracking_scores(truth, drone) == Tracking(100.0, 100.0)
     half = tracking_scores(truth, drone[:10])  # a run that answered the last 10 frames by prediction
     assert half is not None and half.mota == pytest.approx(50.0) and half.idf1 == pytest.approx(100 * 10 / 15)
+    bird_tracked = np.vstack([drone, rows(20, 7, shift=300.0)])  # the tracker follows the bird too
+    assert tracking_scores(truth, bird_tracked) == Tracking(100.0, 100.0), "a bird is a distractor, as in gldt run"
     assert tracking_scores(None, drone) is None, "a bag without ground truth is not scored"
     assert tracking_scores(bird, drone) is None, "nor one without a drone in it"
 

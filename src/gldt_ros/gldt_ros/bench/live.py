@@ -69,15 +69,14 @@ class Tracking:
 
 
 def tracking_scores(ground_truth: np.ndarray | None, rows: np.ndarray) -> Tracking | None:
-    """:class:`Tracking` of MOT ``rows`` against ``ground_truth`` (None for a bag without any drone in it)."""
-    from gldt_core.eval.mot_metrics import evaluate_sequence
+    """:class:`Tracking` of MOT ``rows`` against ``ground_truth`` (None for a bag without any drone in
+    it), scored as ``gldt run`` scores them: the drones are the targets, and a track on an annotated
+    bird or airplane is neither a hit nor a false positive (a distractor)."""
+    from gldt_core.eval.mot_metrics import DEFAULT_TARGET_CLASSES, evaluate_sequence
 
-    if ground_truth is None:
+    if ground_truth is None or not np.isin(ground_truth[:, 7], list(DEFAULT_TARGET_CLASSES)).any():
         return None
-    drones = ground_truth[ground_truth[:, 7] == 1]
-    if not len(drones):
-        return None
-    metrics = evaluate_sequence(drones, rows)
+    metrics = evaluate_sequence(ground_truth, rows)
     return Tracking(100 * metrics["MOTA"], 100 * metrics["IDF1"])
 
 
