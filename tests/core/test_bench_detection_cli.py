@@ -38,7 +38,11 @@ def test_a_small_run_at_a_larger_global_input_writes_its_report(
     assert "skipping the real-data rows" in out
     assert "global input 1280x768" in out, "--long-side must reach the global models"
     report = json.loads((tmp_path / "out" / "report.json").read_text())
-    assert set(report["datasets"]["synthetic-test"]) == {"AM-YOLO+2nd", "AM-YOLO", "no-STFF", "local+2nd", "local"}
+    rows = report["datasets"]["synthetic-test"]
+    assert set(rows) == {"AM-YOLO+2nd", "AM-YOLO", "no-STFF", "local+2nd", "local", "fused+2nd"}
+    assert report["operating_thresholds"]["fused+2nd"] == report["operating_thresholds"]["AM-YOLO+2nd"]
+    for key in ("num_gt", "ap50"):
+        assert key in rows["fused+2nd"]
     assert (tmp_path / "out" / "pr_synthetic-test.png").is_file()
 
 

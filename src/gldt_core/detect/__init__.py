@@ -14,8 +14,9 @@ halves, so the graph and the offline GL-DT system give identical boxes.
 
 Modules: :mod:`.session` (opening and checking a model), :mod:`.global_detector`,
 :mod:`.local_detector`, :mod:`.feature_reuse` (AM-YOLO's split pair), :mod:`.postprocess`
-(letterbox, decoding, NMS), :mod:`.shipped` (the shipped models), :mod:`.video` (a detector over
-a video file). Nothing here imports the export-time code of :mod:`gldt_core.export`.
+(letterbox, decoding, NMS), :mod:`.fusion` (two detectors' calibrated boxes as one set),
+:mod:`.shipped` (the shipped models), :mod:`.video` (a detector over a video file). Nothing here
+imports the export-time code of :mod:`gldt_core.export`.
 """
 
 from gldt_core.detect.global_detector import GlobalCarry, GlobalDetector

@@ -1,0 +1,85 @@
+"""Two detectors' boxes of one frame as one set: the mean of their calibrated scores.
+
+Weighted-box fusion for two models: a box that both detectors report (IoU >= ``match_iou``,
+paired greedily, highest IoU first, each box at most once) becomes one box whose corners are the
+score-weighted mean of the two, whose score is the mean of the two scores and whose class
+probabilities are the mean of the two; it keeps the class id of the higher-scoring one. A box that
+only one detector reports keeps its place and half its score: the other detector's score for it
+counts as 0. The mean means something only where both scores are calibrated probabilities of the
+same event (the second stage's, :mod:`gldt_core.detect.second_stage`).
+
+The pairing is loose (:data:`MATCH_IOU`) because the two detectors box a small drone at different
+sizes, as its annotations do (:data:`gldt_core.eval.halmstad_split.LOOSE_IOU`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from gldt_core.eval.detection_metrics import box_iou
+
+#: Lowest IoU at which a box of one detector is taken for the same object as a box of the other.
+MATCH_IOU = 0.3
+
+#: Column of the score and of the class id in a detection row (``x1, y1, x2, y2, score, class``).
+SCORE = 4
+CLASS_ID = 5
+
+
+def greedy_pairs(iou: np.ndarray, match_iou: float) -> list[tuple[int, int]]:
+    """``(row, column)`` pairs of ``iou`` at or above ``match_iou``, highest first, each row and
+    column used at most once."""
+    pairs: list[tuple[int, int]] = []
+    if iou.size == 0:
+        return pairs
+    rows_used, columns_used = set(), set()
+    flat = np.argsort(-iou, axis=None, kind="stable")
+    for index in flat:
+        row, column = divmod(int(index), iou.shape[1])
+        if iou[row, column] < match_iou:
+            break
+        if row in rows_used or column in columns_used:
+            continue
+        rows_used.add(row)
+        columns_used.add(column)
+        pairs.append((row, column))
+    return pairs
+
+
+def fuse_detections(first: np.ndarray, second: np.ndarray, match_iou: float = MATCH_IOU) -> np.ndarray:
+    """One frame's detections of two detectors, fused (see the module docstring).
+
+    ``first`` and ``second``: ``(N, C)`` and ``(M, C)`` rows ``[x1, y1, x2, y2, score, ...]`` with
+    the same ``C >= 5`` columns; where ``C >= 6`` column 5 is the class id and any further columns
+    (class probabilities) are averaged. Returns ``(K, C)`` float32 rows: the pairs first, in
+    pairing order, then ``first``'s unpaired boxes, then ``second``'s.
+    """
+    first = np.asarray(first, dtype=np.float64)
+    second = np.asarray(second, dtype=np.float64)
+    if first.ndim != 2 or second.ndim != 2 or first.shape[1] != second.shape[1] or first.shape[1] < 5:
+        raise ValueError(
+            "fuse_detections needs two (N, C) arrays with the same C >= 5 columns, "
+            f"got {first.shape} and {second.shape}"
+        )
+    if not 0.0 < match_iou <= 1.0:
+        raise ValueError(f"match_iou must be in (0, 1], got {match_iou}")
+    pairs = greedy_pairs(box_iou(first[:, :4], second[:, :4]), match_iou)
+    fused = np.zeros((len(pairs), first.shape[1]))
+    for k, (i, j) in enumerate(pairs):
+        a, b = first[i], second[j]
+        weights = np.array([a[SCORE], b[SCORE]])
+        weights = weights / weights.sum() if weights.sum() > 0 else np.array([0.5, 0.5])
+        fused[k] = (a + b) / 2
+        fused[k, :4] = weights[0] * a[:4] + weights[1] * b[:4]
+        if first.shape[1] > CLASS_ID:
+            fused[k, CLASS_ID] = (a if a[SCORE] >= b[SCORE] else b)[CLASS_ID]
+    paired_first = {i for i, _ in pairs}
+    paired_second = {j for _, j in pairs}
+    alone = np.concatenate(
+        [
+            first[[i for i in range(len(first)) if i not in paired_first]],
+            second[[j for j in range(len(second)) if j not in paired_second]],
+        ]
+    )
+    alone[:, SCORE] /= 2
+    return np.concatenate([fused, alone]).astype(np.float32)
