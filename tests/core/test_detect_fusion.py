@@ -72,3 +72,76 @@ def test_empty_inputs_and_bad_shapes() -> None:
         fuse_detections(one, one[:, :6])
     with pytest.raises(ValueError, match="match_iou"):
         fuse_detections(one, one, match_iou=0.0)
+
+
+def real_pairs(count: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(previous, current) pairs of the real 640x512 sample bag, a drone in every frame."""
+    from itertools import islice
+
+    from gldt_core.io.sources import open_source
+    from gldt_core.paths import REPO_ROOT
+
+    frames = [frame.image for frame in islice(open_source(str(REPO_ROOT / "bags" / "halmstad_v_drone_001")), count)]
+    return list(zip(frames[:-1], frames[1:], strict=True))[::5]
+
+
+@pytest.fixture(scope="module")
+def fused_detector() -> object:
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.fusion import build_tile_detector
+
+    settings = {"score_threshold": 0.1, "num_threads": 1, "classes": (1,)}
+    return GlobalDetector(**settings, tile_detector=build_tile_detector(None, settings))
+
+
+def test_a_gd_frame_with_tiles_is_both_detectors_fused_then_cut_at_the_threshold(fused_detector: object) -> None:
+    """The fused rows of a 640x512 frame (its own network input) are AM-YOLO's and the local
+    model's over tiles of the frame, each down to half the threshold, fused, cut at the threshold."""
+    from gldt_core.detect import GlobalDetector, LocalDetector
+
+    alone = GlobalDetector(score_threshold=0.05, num_threads=1, classes=(1,))
+    tiles = LocalDetector(score_threshold=0.05, num_threads=1, classes=(1,))
+    found = 0
+    for previous, current in real_pairs(16):
+        expected = fuse_detections(alone.detect(previous, current), tiles.detect_tiles(current, previous))
+        expected = expected[expected[:, 4] >= 0.1]
+        fused = fused_detector.detect(previous, current)  # type: ignore[attr-defined]
+        np.testing.assert_allclose(fused, expected, atol=1e-4)
+        found += int((fused[:, 4] >= 0.5).any())
+    assert found >= 2, "the drone of the sample bag is found at the calibrated 0.5 in some of these frames"
+
+
+def test_a_frame_letterboxed_below_the_tiles_scale_keeps_the_global_boxes(fused_detector: object) -> None:
+    """A 1080p frame is letterboxed at 1/3: no tiles; the rows are AM-YOLO's at the threshold."""
+    import cv2
+
+    from gldt_core.detect import GlobalDetector
+
+    previous, current = (cv2.resize(frame, (1920, 1080)) for frame in real_pairs(6)[0])
+    alone = GlobalDetector(score_threshold=0.1, num_threads=1, classes=(1,))
+    np.testing.assert_allclose(
+        fused_detector.detect(previous, current),  # type: ignore[attr-defined]
+        alone.detect(previous, current),
+        atol=1e-5,
+    )
+
+
+def test_a_tile_detector_that_cuts_above_half_the_threshold_is_refused() -> None:
+    from gldt_core.detect import DetectorConfigError, GlobalDetector, LocalDetector
+
+    with pytest.raises(DetectorConfigError, match="at most 0.05"):
+        GlobalDetector(score_threshold=0.1, tile_detector=LocalDetector(score_threshold=0.1))
+
+
+def test_tile_fusion_is_a_config_key_that_needs_the_second_stage(tmp_path: object) -> None:
+    from pathlib import Path
+
+    from gldt_core.system.config import load_config
+
+    folder = Path(str(tmp_path))
+    (folder / "on.yaml").write_text("detector: {tile_fusion: true}\n")
+    assert load_config(folder / "on.yaml").detector.tile_fusion
+    assert not load_config(None).detector.tile_fusion, "off by default"
+    (folder / "bad.yaml").write_text("detector: {tile_fusion: true, second_stage: null}\n")
+    with pytest.raises(ValueError, match="tile_fusion needs the second stage"):
+        load_config(folder / "bad.yaml")

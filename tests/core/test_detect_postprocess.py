@@ -11,10 +11,10 @@ from gldt_core.detect.postprocess import (
     letterbox,
     nms,
     rect_input_size,
+    tile_rois,
     to_blob,
     unletterbox,
 )
-from gldt_core.detect.video import tile_rois
 from gldt_core.eval.halmstad_split import split_clips
 
 

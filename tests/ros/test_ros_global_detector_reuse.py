@@ -190,3 +190,36 @@ def test_the_node_warms_the_model_up_before_it_is_ready_and_keeps_nothing_of_it(
         node.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_with_tile_fusion_the_node_publishes_the_offline_systems_fused_rows() -> None:
+    """``tile_fusion`` on the node and ``detector.tile_fusion`` offline fuse the same rows: the node
+    gets the letterboxed pair, and a 640x512 frame is its own network input."""
+    import dataclasses
+
+    from rclpy.parameter import Parameter
+
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import build_detectors
+    from gldt_ros.nodes.global_detector import GlobalDetectorNode
+
+    prepared, width, height, pair = bag_pairs(4)
+    config = load_config(None)
+    offline, _ = build_detectors(
+        dataclasses.replace(config, detector=dataclasses.replace(config.detector, tile_fusion=True))
+    )
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = GlobalDetectorNode(context=context, parameter_overrides=[Parameter("tile_fusion", value=True)])
+        assert node.detector.tile_detector is not None
+        for previous, current in [(0, 1), (1, 2), (2, 3)]:
+            message = node.detect(pair(previous, current))
+            rows = as_published(offline.detect(prepared[previous][0], prepared[current][0]))  # type: ignore[attr-defined]
+            boxes = np.array([[d.center_x, d.center_y, d.width, d.height, d.score] for d in message.detections])
+            assert len(boxes) == len(rows) > 0
+            np.testing.assert_allclose(boxes[:, 4], rows[:, 4], atol=1e-4)
+            np.testing.assert_allclose(boxes[:, 0], (rows[:, 0] + rows[:, 2]) / 2, atol=1e-3)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)

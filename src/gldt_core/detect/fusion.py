@@ -10,13 +10,24 @@ same event (the second stage's, :mod:`gldt_core.detect.second_stage`).
 
 The pairing is loose (:data:`MATCH_IOU`) because the two detectors box a small drone at different
 sizes, as its annotations do (:data:`gldt_core.eval.halmstad_split.LOOSE_IOU`).
+
+:func:`fuse_with_tiles` is the GD frame's fusion (``detector.tile_fusion``): AM-YOLO's boxes with
+the local model's over :data:`TILE_SIDE` tiles of the same letterboxed frame. It runs inside
+:meth:`gldt_core.detect.GlobalDetector.detect_prepared`, so the offline system and the
+``global_detector`` node fuse the same rows.
 """
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING, Any
+
 import numpy as np
 
+from gldt_core.detect.postprocess import Letterbox, drop_degenerate, unletterbox
 from gldt_core.eval.detection_metrics import box_iou
+
+if TYPE_CHECKING:
+    from gldt_core.detect.local_detector import LocalDetector
 
 #: Lowest IoU at which a box of one detector is taken for the same object as a box of the other.
 MATCH_IOU = 0.3
@@ -24,6 +35,12 @@ MATCH_IOU = 0.3
 #: Column of the score and of the class id in a detection row (``x1, y1, x2, y2, score, class``).
 SCORE = 4
 CLASS_ID = 5
+#: Side of the local model's tiles over a GD frame's network input [px]: the ROI it learned on.
+TILE_SIDE = 300
+#: Smallest letterbox scale at which the tiles run. Below it the network input shows the drones
+#: smaller than the local model learned them (a 1080p frame is letterboxed at 1/3), and a GD frame
+#: keeps AM-YOLO's boxes alone; a 640x512 frame is its own input (scale 1).
+TILE_MIN_SCALE = 0.8
 
 
 def greedy_pairs(iou: np.ndarray, match_iou: float) -> list[tuple[int, int]]:
@@ -83,3 +100,39 @@ def fuse_detections(first: np.ndarray, second: np.ndarray, match_iou: float = MA
     )
     alone[:, SCORE] /= 2
     return np.concatenate([fused, alone]).astype(np.float32)
+
+
+def fuse_with_tiles(
+    global_rows: np.ndarray,
+    local: LocalDetector,
+    previous_input: np.ndarray,
+    current_input: np.ndarray,
+    mapping: Letterbox,
+    frame_width: int,
+    frame_height: int,
+) -> np.ndarray:
+    """AM-YOLO's ``(N, 9)`` rows of a GD frame (full-frame pixels) fused with the local model's
+    over :data:`TILE_SIDE` tiles of the letterboxed pair it saw (``mapping`` takes them back to the
+    ``frame_width x frame_height`` frame); ``global_rows`` unchanged where the letterbox scale is
+    below :data:`TILE_MIN_SCALE`. Both detectors' scores must be calibrated, and neither cut at
+    the operating threshold yet: the caller cuts the fused rows."""
+    if mapping.scale < TILE_MIN_SCALE:
+        return global_rows
+    tiles = local.detect_tiles(current_input, previous_input, TILE_SIDE)
+    tiles = drop_degenerate(unletterbox(tiles, mapping, frame_width, frame_height))
+    return fuse_detections(global_rows, tiles)
+
+
+def build_tile_detector(local_model: str | None, global_kwargs: dict[str, Any]) -> LocalDetector:
+    """The local detector that a :class:`~gldt_core.detect.GlobalDetector` built with
+    ``global_kwargs`` fuses over tiles (its ``tile_detector``): the local model (None: the shipped
+    one) with the same providers, threads, classes and second stage, and half the fused score
+    threshold (see :func:`fuse_detections`: a box the other detector misses counts half)."""
+    from gldt_core.detect.local_detector import LocalDetector
+    from gldt_core.detect.second_stage import default_score_threshold
+
+    threshold = global_kwargs.get("score_threshold")
+    if threshold is None:
+        threshold = default_score_threshold(global_kwargs.get("second_stage") is not None)
+    kwargs = {key: value for key, value in global_kwargs.items() if key not in ("model_path", "feature_reuse")}
+    return LocalDetector(model_path=local_model, **{**kwargs, "score_threshold": threshold / 2})

@@ -26,6 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from gldt_core.detect.feature_reuse import FeatureReuse, features_path, load_feature_reuse, reuse_path
+from gldt_core.detect.fusion import fuse_with_tiles
+from gldt_core.detect.local_detector import LocalDetector
 from gldt_core.detect.postprocess import (
     Letterbox,
     decode_output,
@@ -72,6 +74,12 @@ class GlobalDetector(OnnxDetector):
     --feature-reuse`` instead of the full model, with the same boxes; :meth:`detect_pair` and
     :meth:`detect_prepared` then hand each GD frame's features to the next
     (:mod:`gldt_core.detect.feature_reuse`).
+
+    ``tile_detector`` (a :class:`LocalDetector` with the same second stage, its own score
+    threshold at most half of this one's) also runs the local model over tiles of each letterboxed
+    frame and fuses its boxes with AM-YOLO's (:func:`gldt_core.detect.fusion.fuse_with_tiles`):
+    the model's candidates are then kept down to half of ``score_threshold``, which applies to
+    the fused score.
     """
 
     EXPECTATION = GLOBAL_INPUT_EXPECTATION
@@ -89,6 +97,7 @@ class GlobalDetector(OnnxDetector):
         classes: Sequence[int] | None = None,
         feature_reuse: bool | None = None,
         second_stage: SecondStageChoice = BESIDE,
+        tile_detector: LocalDetector | None = None,
     ):
         if feature_reuse and not optimize_graph:
             raise DetectorConfigError(
@@ -106,12 +115,20 @@ class GlobalDetector(OnnxDetector):
         )
         if score_threshold is None:
             score_threshold = default_score_threshold(second_stage is not None)
+        self.tile_detector = tile_detector
+        # With tiles, a box one detector misses counts half its score: keep candidates down to half.
+        own_threshold = score_threshold / 2 if tile_detector is not None else score_threshold
+        if tile_detector is not None and tile_detector.score_threshold > own_threshold + 1e-9:
+            raise DetectorConfigError(
+                f"tile_detector: its score threshold {tile_detector.score_threshold:g} must be at most "
+                f"{own_threshold:g}, half the fused threshold {score_threshold:g}"
+            )
         inputs = self._open(
             model_path,
             DEFAULT_GLOBAL_MODEL,
             providers,
             num_threads,
-            score_threshold,
+            own_threshold,
             iou_threshold,
             optimize_graph and not split_first,
         )
@@ -148,6 +165,7 @@ class GlobalDetector(OnnxDetector):
         self.feature_reuse: FeatureReuse | None = None
         if split_first or (optimize_graph and feature_reuse):  # required but absent: a clear error
             self.feature_reuse = load_feature_reuse(self.model_path, providers, num_threads, feature_reuse)
+        self.score_threshold = float(score_threshold)  # the fused rows' threshold where tiles run
         if split_first:
             if self.feature_reuse is None:  # the full model runs every pair: optimise it now, not on the first frame
                 self._open_optimized()
@@ -220,6 +238,11 @@ class GlobalDetector(OnnxDetector):
         else:
             detections = np.concatenate([detections, one_hot_probabilities(detections[:, 5])], axis=1)
         detections = drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
+        if self.tile_detector is not None:
+            detections = fuse_with_tiles(
+                detections, self.tile_detector, previous_input, current_input, mapping, frame_width, frame_height
+            )
+            detections = detections[detections[:, 4] >= self.score_threshold]
         return detections.astype(np.float32), current_features
 
     def detect(self, previous_bgr: np.ndarray | None, current_bgr: np.ndarray) -> np.ndarray:

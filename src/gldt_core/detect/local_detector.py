@@ -30,6 +30,8 @@ from gldt_core.detect.postprocess import (
     drop_degenerate,
     ensure_bgr,
     letterbox,
+    nms,
+    tile_rois,
     to_blob,
     unletterbox,
 )
@@ -46,6 +48,8 @@ from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_im
 from gldt_core.detect.shipped import DEFAULT_LOCAL_MODEL
 
 LOCAL_INPUT_EXPECTATION = "one input (N, 3, S, S) float32 RGB ROI crops"
+#: Column of a local detection row that holds the index of its ROI.
+ROI_INDEX_COLUMN = 6
 
 
 class LocalDetector(OnnxDetector):
@@ -244,3 +248,13 @@ class LocalDetector(OnnxDetector):
                 raise ValueError(f"previous frame {previous.shape[:2]} and frame {frame.shape[:2]} differ in size")
             previous_crops = [self.crop(previous, roi) for roi in rois]
         return self.detect_crops([self.crop(frame, roi) for roi in rois], rois, w, h, previous_crops)
+
+    def detect_tiles(
+        self, frame_bgr: np.ndarray, previous_bgr: np.ndarray | None = None, side: int = 300
+    ) -> np.ndarray:
+        """``(N, 9)`` rows of :meth:`detect_rois` without the ROI index, over ``side x side`` tiles
+        that cover the whole frame (:func:`~gldt_core.detect.postprocess.tile_rois`: no tracker
+        is there to place ROIs), the tile seams merged by NMS at IoU 0.5."""
+        h, w = frame_bgr.shape[:2]
+        rows = np.delete(self.detect_rois(frame_bgr, tile_rois(w, h, side), previous_bgr), ROI_INDEX_COLUMN, axis=1)
+        return rows[nms(rows[:, :4], rows[:, 4], 0.5)] if len(rows) else rows

@@ -189,3 +189,16 @@ def unletterbox(dets: np.ndarray, lb: Letterbox, frame_w: int, frame_h: int) -> 
 def drop_degenerate(detections: np.ndarray) -> np.ndarray:
     """Remove boxes that clipping to the frame reduced to zero width or height."""
     return detections[(detections[:, 2] > detections[:, 0]) & (detections[:, 3] > detections[:, 1])]
+
+
+def tile_rois(frame_w: int, frame_h: int, side: int = 300, min_overlap: int = 40) -> np.ndarray:
+    """``(R, 4)`` int ROIs of ``side x side`` covering the frame with at least ``min_overlap`` px overlap."""
+
+    def starts(length: int) -> list[int]:
+        if length <= side:
+            return [0]
+        n = int(np.ceil((length - min_overlap) / (side - min_overlap)))
+        return [int(round(i * (length - side) / (n - 1))) for i in range(n)]
+
+    rois = [[x, y, x + side, y + side] for y in starts(frame_h) for x in starts(frame_w)]
+    return np.asarray(rois, dtype=np.int64)

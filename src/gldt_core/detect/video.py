@@ -15,7 +15,6 @@ import numpy as np
 
 from gldt_core.detect.global_detector import GlobalDetector
 from gldt_core.detect.local_detector import LocalDetector
-from gldt_core.detect.postprocess import nms
 
 
 def iter_video_frames(path: Path | str) -> Iterator[np.ndarray]:
@@ -42,19 +41,6 @@ def iter_video_frames(path: Path | str) -> Iterator[np.ndarray]:
         cap.release()
 
 
-def tile_rois(frame_w: int, frame_h: int, side: int = 300, min_overlap: int = 40) -> np.ndarray:
-    """``(R, 4)`` int ROIs of ``side x side`` covering the frame with at least ``min_overlap`` px overlap."""
-
-    def starts(length: int) -> list[int]:
-        if length <= side:
-            return [0]
-        n = int(np.ceil((length - min_overlap) / (side - min_overlap)))
-        return [int(round(i * (length - side) / (n - 1))) for i in range(n)]
-
-    rois = [[x, y, x + side, y + side] for y in starts(frame_h) for x in starts(frame_w)]
-    return np.asarray(rois, dtype=np.int64)
-
-
 def frame_detections(
     detector: GlobalDetector | LocalDetector, previous: np.ndarray | None, frame: np.ndarray, roi_side: int = 300
 ) -> np.ndarray:
@@ -63,10 +49,7 @@ def frame_detections(
     one on ``roi_side`` tiles covering the frame, tile seams merged by NMS."""
     if isinstance(detector, GlobalDetector):
         return detector.detect(previous, frame)
-    h, w = frame.shape[:2]
-    dets = detector.detect_rois(frame, tile_rois(w, h, roi_side), previous)
-    dets = np.delete(dets, 6, axis=1)  # the tile index
-    return dets[nms(dets[:, :4], dets[:, 4], 0.5)] if len(dets) else dets
+    return detector.detect_tiles(frame, previous, roi_side)
 
 
 def detect_frames(

@@ -23,6 +23,9 @@ Example (every key shown with its default)::
                               # null = when present, false = never, true = required
       second_stage: beside    # crop classifier re-scoring both detectors' candidates:
                               # beside = second_stage.onnx next to the global model, a path, or null
+      tile_fusion: false      # GD frames also run the local model over tiles of the frame and
+                              # fuse its calibrated boxes with AM-YOLO's (gldt_core.detect.fusion);
+                              # needs the second stage; frames letterboxed below 0.8 (1080p) skip it
     tracker:
       name: jptrack           # or bytetrack
       params: {}              # for the named tracker's config
@@ -88,6 +91,7 @@ class DetectorSettings:
     nested_threshold: float | None = 0.8
     feature_reuse: bool | None = None
     second_stage: str | None = "beside"
+    tile_fusion: bool = False
 
     def __post_init__(self) -> None:
         if self.score_threshold is not None and not 0.0 <= self.score_threshold <= 1.0:
@@ -98,6 +102,8 @@ class DetectorSettings:
             raise ValueError(f"detector.nested_threshold must be in (0, 1] or null, got {self.nested_threshold!r}")
         if not self.providers:
             raise ValueError("detector.providers must name at least one onnxruntime provider")
+        if self.tile_fusion and self.second_stage is None:
+            raise ValueError("detector.tile_fusion needs the second stage: it averages calibrated scores")
 
 
 @dataclass(frozen=True)
@@ -168,6 +174,7 @@ _DETECTOR_KEYS = {
     "nested_threshold": float,
     "feature_reuse": bool,
     "second_stage": str,
+    "tile_fusion": bool,
 }
 _TRACKER_KEYS = {"name": str, "params": dict, "jptrack": dict, "bytetrack": dict}
 _TOP_KEYS = {"scheduler", "roi", "detector", "tracker", "track_lost_frames"}

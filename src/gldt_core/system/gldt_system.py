@@ -163,8 +163,13 @@ def build_detectors(config: SystemConfig) -> tuple[GlobalDetectorLike, LocalDete
     }
     if settings.score_threshold is not None:
         kwargs["score_threshold"] = settings.score_threshold
+    tile_detector = None
+    if settings.tile_fusion:
+        from gldt_core.detect.fusion import build_tile_detector
+
+        tile_detector = build_tile_detector(settings.local_model, kwargs)
     global_detector = detect.GlobalDetector(
-        model_path=settings.global_model, feature_reuse=settings.feature_reuse, **kwargs
+        model_path=settings.global_model, feature_reuse=settings.feature_reuse, tile_detector=tile_detector, **kwargs
     )
     local_detector = None
     if config.scheduler.local_enabled:

@@ -118,6 +118,13 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ),
         ParamSpec("num_threads", 0, "onnxruntime intra-op threads; 0 = onnxruntime default", 0, 64),
         ParamSpec(
+            "tile_fusion",
+            _DETECTOR_DEFAULTS.tile_fusion,
+            "Also run the local model over 300 px tiles of each pair's current frame and fuse its calibrated boxes "
+            "with AM-YOLO's (gldt run's detector.tile_fusion); pairs letterboxed below 0.8 (1080p) skip it",
+        ),
+        ParamSpec("tile_model_path", "", "Local ONNX file for tile_fusion; empty = the model shipped with gldt_core"),
+        ParamSpec(
             "pair_queue_depth",
             1,
             "Frame pairs kept while the detector runs; "

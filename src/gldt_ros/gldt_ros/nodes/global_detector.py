@@ -25,6 +25,7 @@ import numpy as np
 from gldt_msgs.msg import Detection, DetectionArray, FramePair
 
 from gldt_core.detect import GlobalCarry, GlobalDetector
+from gldt_core.detect.fusion import build_tile_detector
 from gldt_core.detect.postprocess import Letterbox
 from gldt_core.detect.second_stage import GLOBAL_COLUMNS
 from gldt_core.system.steps import drop_nested, filter_classes
@@ -43,7 +44,11 @@ WARM_UP_RUNS = 2
 class GlobalDetectorNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("global_detector", **kwargs)
-        self.detector = GlobalDetector(**detector_kwargs(self.param))
+        kwargs = detector_kwargs(self.param)
+        tiles = (
+            build_tile_detector(self.param("tile_model_path") or None, kwargs) if self.param("tile_fusion") else None
+        )
+        self.detector = GlobalDetector(**kwargs, tile_detector=tiles)
         self.classes = parse_classes(self.param("classes"))
         # On a small CPU AM-YOLO takes longer than a frame period, so during a GD stretch at 30 Hz
         # pairs arrive faster than it answers, and queueing them puts whole seconds between camera
