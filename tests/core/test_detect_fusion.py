@@ -131,6 +131,10 @@ def test_a_tile_detector_that_cuts_above_half_the_threshold_is_refused() -> None
 
     with pytest.raises(DetectorConfigError, match="at most 0.05"):
         GlobalDetector(score_threshold=0.1, tile_detector=LocalDetector(score_threshold=0.1))
+    from gldt_core.detect.fusion import build_tile_detector
+
+    with pytest.raises(DetectorConfigError, match="needs the second stage"):
+        build_tile_detector(None, {"second_stage": None, "score_threshold": 0.1})
 
 
 def test_tile_fusion_is_a_config_key_that_needs_the_second_stage(tmp_path: object) -> None:

@@ -129,10 +129,13 @@ def build_tile_detector(local_model: str | None, global_kwargs: dict[str, Any]) 
     one) with the same providers, threads, classes and second stage, and half the fused score
     threshold (see :func:`fuse_detections`: a box the other detector misses counts half)."""
     from gldt_core.detect.local_detector import LocalDetector
-    from gldt_core.detect.second_stage import default_score_threshold
+    from gldt_core.detect.second_stage import BESIDE, default_score_threshold
+    from gldt_core.detect.session import DetectorConfigError
 
+    if global_kwargs.get("second_stage", BESIDE) is None:
+        raise DetectorConfigError("tile fusion needs the second stage: it averages calibrated scores")
     threshold = global_kwargs.get("score_threshold")
     if threshold is None:
-        threshold = default_score_threshold(global_kwargs.get("second_stage") is not None)
+        threshold = default_score_threshold(True)
     kwargs = {key: value for key, value in global_kwargs.items() if key not in ("model_path", "feature_reuse")}
     return LocalDetector(model_path=local_model, **{**kwargs, "score_threshold": threshold / 2})

@@ -44,11 +44,11 @@ WARM_UP_RUNS = 2
 class GlobalDetectorNode(GldtNode):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("global_detector", **kwargs)
-        kwargs = detector_kwargs(self.param)
-        tiles = (
-            build_tile_detector(self.param("tile_model_path") or None, kwargs) if self.param("tile_fusion") else None
-        )
-        self.detector = GlobalDetector(**kwargs, tile_detector=tiles)
+        settings = detector_kwargs(self.param)
+        tiles = None
+        if self.param("tile_fusion"):  # the local model over tiles too (gldt_core.detect.fusion)
+            tiles = build_tile_detector(self.param("tile_model_path") or None, settings)
+        self.detector = GlobalDetector(**settings, tile_detector=tiles)
         self.classes = parse_classes(self.param("classes"))
         # On a small CPU AM-YOLO takes longer than a frame period, so during a GD stretch at 30 Hz
         # pairs arrive faster than it answers, and queueing them puts whole seconds between camera
