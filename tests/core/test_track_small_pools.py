@@ -266,7 +266,7 @@ def test_relative_positions_are_the_same_on_floats_and_arrays(seed: int, n: int,
         corner = xy - rng.uniform(0, 200, (n, 2))
         rois = np.hstack([corner, corner + rng.choice([0.0, 320.0, 640.0], (n, 1))])  # some degenerate
     tracker = JPTrack(JPTrackConfig(image_size=(1920, 1080)))
-    on_floats, on_arrays = both_ways(tracker._relative_positions, dets, rois, 0.0, None)
+    on_floats, on_arrays = both_ways(tracker._relative_positions, dets, rois)
     assert on_floats == on_arrays
     if not with_rois:
         assert on_floats[0] == ((dets[0, 0] + dets[0, 2]) * 0.5 / 1920, (dets[0, 1] + dets[0, 3]) * 0.5 / 1080)

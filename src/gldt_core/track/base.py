@@ -179,7 +179,7 @@ class MultiStageTracker:
 
         active = [tr for tr in self._tracks if tr.state in OUTPUT_STATES]
         dets, rois = self._merge_parts(dets, rois, active)
-        rel = self._relative_positions(dets, rois, t, frame)
+        rel = self._relative_positions(dets, rois)
         scores = dets[:, 4]
         if self._strict_scores:
             high = (scores > self._t_high).nonzero()[0]
@@ -338,14 +338,12 @@ class MultiStageTracker:
         )
         self._next_id += 1
 
-    def _relative_positions(
-        self, dets: np.ndarray, rois: np.ndarray | None, t: float, frame: int | None
-    ) -> list[tuple[float, float]]:
-        """(x_rel, y_rel) of each detection centre inside its ROI (the image when no ROI)."""
+    def _relative_positions(self, dets: np.ndarray, r: np.ndarray | None) -> list[tuple[float, float]]:
+        """(x_rel, y_rel) of each detection centre inside its ROI (the image when no ROI); ``r``
+        as :meth:`_checked_rois` returns it, one row per detection."""
         if len(dets) == 0:
             return []
         boxes = dets[:, 0], dets[:, 1], dets[:, 2], dets[:, 3]
-        r = self._checked_rois(dets, rois, t, frame)
         if r is None:  # the image
             w, h = self._image_size
             if on_floats(len(dets)):
