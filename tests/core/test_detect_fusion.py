@@ -137,15 +137,19 @@ def test_a_tile_detector_that_cuts_above_half_the_threshold_is_refused() -> None
         build_tile_detector(None, {"second_stage": None, "score_threshold": 0.1})
 
 
-def test_tile_fusion_is_a_config_key_that_needs_the_second_stage(tmp_path: object) -> None:
+def test_tile_fusion_is_a_config_key_on_by_default_that_needs_the_second_stage(tmp_path: object) -> None:
     from pathlib import Path
 
     from gldt_core.system.config import load_config
 
     folder = Path(str(tmp_path))
-    (folder / "on.yaml").write_text("detector: {tile_fusion: true}\n")
-    assert load_config(folder / "on.yaml").detector.tile_fusion
-    assert not load_config(None).detector.tile_fusion, "off by default"
-    (folder / "bad.yaml").write_text("detector: {tile_fusion: true, second_stage: null}\n")
-    with pytest.raises(ValueError, match="tile_fusion needs the second stage"):
+    assert load_config(None).detector.tile_fusion, "on by default"
+    (folder / "off.yaml").write_text("detector: {tile_fusion: false}\n")
+    assert not load_config(folder / "off.yaml").detector.tile_fusion
+    # The second stage off alone leaves the default fusion on: one line that says what to set.
+    (folder / "bad.yaml").write_text("detector: {second_stage: null}\n")
+    with pytest.raises(ValueError, match="tile_fusion needs the second stage") as error:
         load_config(folder / "bad.yaml")
+    assert "\n" not in str(error.value) and "tile_fusion: false" in str(error.value)
+    (folder / "alone.yaml").write_text("detector: {second_stage: null, tile_fusion: false}\n")
+    assert load_config(folder / "alone.yaml").detector.second_stage is None

@@ -126,6 +126,14 @@ def test_the_shipped_balanced_models_config_points_at_the_shipped_files(tmp_path
     assert config.scheduler == SystemConfig().scheduler, "only the models change"
 
 
+@pytest.mark.parametrize("name", sorted(path.name for path in (CONFIGS / "run").glob("*.yaml")))
+def test_every_shipped_run_config_loads(name):
+    """A default that changes (tile fusion, on since the second stage calibrates both detectors)
+    must not leave a shipped config that the loader refuses."""
+    config = load_config(CONFIGS / "run" / name)
+    assert config.detector.second_stage is not None or not config.detector.tile_fusion
+
+
 def test_the_detectors_are_asked_about_the_tracked_classes(tmp_path):
     from gldt_core.system.gldt_system import build_detectors
 

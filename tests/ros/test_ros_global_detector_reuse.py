@@ -89,6 +89,7 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypa
             score_threshold=node.detector.score_threshold,
             classes=node.detector.classes,
             feature_reuse=False,
+            tile_detector=node.detector.tile_detector,  # the default node fuses tiles too
         )
         # A GD stretch 0-1-2, then a pair whose previous frame (3) was never a current one here
         # (skipped, or an LD frame), then 3-4 again in a stretch.
@@ -150,6 +151,7 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
             score_threshold=node.detector.score_threshold,
             classes=node.detector.classes,
             feature_reuse=False,
+            tile_detector=node.detector.tile_detector,  # the default node fuses tiles too
         )
         published.append(node.detect(pair(0, 1, with_previous=True)))
         published.append(node.detect(pair(1, 2, with_previous=False)))  # frame 1 is held here
@@ -192,11 +194,10 @@ def test_the_node_warms_the_model_up_before_it_is_ready_and_keeps_nothing_of_it(
         rclpy.shutdown(context=context)
 
 
-def test_with_tile_fusion_the_node_publishes_the_offline_systems_fused_rows() -> None:
-    """``tile_fusion`` on the node and ``detector.tile_fusion`` offline fuse the same rows: the node
-    gets the letterboxed pair, and a 640x512 frame is its own network input."""
-    import dataclasses
-
+def test_the_default_node_publishes_the_offline_systems_fused_rows() -> None:
+    """Tile fusion is on by default on the node (``tile_fusion``) and offline
+    (``detector.tile_fusion``), and both fuse the same rows: the node gets the letterboxed pair,
+    and a 640x512 frame is its own network input. ``tile_fusion:=false`` leaves AM-YOLO alone."""
     from rclpy.parameter import Parameter
 
     from gldt_core.system.config import load_config
@@ -205,13 +206,12 @@ def test_with_tile_fusion_the_node_publishes_the_offline_systems_fused_rows() ->
 
     prepared, width, height, pair = bag_pairs(4)
     config = load_config(None)
-    offline, _ = build_detectors(
-        dataclasses.replace(config, detector=dataclasses.replace(config.detector, tile_fusion=True))
-    )
+    assert config.detector.tile_fusion
+    offline, _ = build_detectors(config)
     context = Context()
     rclpy.init(context=context)
     try:
-        node = GlobalDetectorNode(context=context, parameter_overrides=[Parameter("tile_fusion", value=True)])
+        node = GlobalDetectorNode(context=context)
         assert node.detector.tile_detector is not None
         for previous, current in [(0, 1), (1, 2), (2, 3)]:
             message = node.detect(pair(previous, current))
@@ -221,5 +221,8 @@ def test_with_tile_fusion_the_node_publishes_the_offline_systems_fused_rows() ->
             np.testing.assert_allclose(boxes[:, 4], rows[:, 4], atol=1e-4)
             np.testing.assert_allclose(boxes[:, 0], (rows[:, 0] + rows[:, 2]) / 2, atol=1e-3)
         node.destroy_node()
+        alone = GlobalDetectorNode(context=context, parameter_overrides=[Parameter("tile_fusion", value=False)])
+        assert alone.detector.tile_detector is None
+        alone.destroy_node()
     finally:
         rclpy.shutdown(context=context)

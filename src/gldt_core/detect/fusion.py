@@ -133,7 +133,10 @@ def build_tile_detector(local_model: str | None, global_kwargs: dict[str, Any]) 
     from gldt_core.detect.session import DetectorConfigError
 
     if global_kwargs.get("second_stage", BESIDE) is None:
-        raise DetectorConfigError("tile fusion needs the second stage: it averages calibrated scores")
+        raise DetectorConfigError(
+            "tile fusion needs the second stage (it averages calibrated scores): "
+            "set tile_fusion false to run without it"
+        )
     threshold = global_kwargs.get("score_threshold")
     if threshold is None:
         threshold = default_score_threshold(True)

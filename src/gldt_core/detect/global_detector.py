@@ -19,7 +19,7 @@ halves of the split give the same rows wherever they run.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -79,7 +79,8 @@ class GlobalDetector(OnnxDetector):
     threshold at most half of this one's) also runs the local model over tiles of each letterboxed
     frame and fuses its boxes with AM-YOLO's (:func:`gldt_core.detect.fusion.fuse_with_tiles`):
     the model's candidates are then kept down to half of ``score_threshold``, which applies to
-    the fused score.
+    the fused score. It may also be a function that builds it: it is called once this detector's
+    own model has opened, so a broken global model is the error a user sees first.
     """
 
     EXPECTATION = GLOBAL_INPUT_EXPECTATION
@@ -97,7 +98,7 @@ class GlobalDetector(OnnxDetector):
         classes: Sequence[int] | None = None,
         feature_reuse: bool | None = None,
         second_stage: SecondStageChoice = BESIDE,
-        tile_detector: LocalDetector | None = None,
+        tile_detector: LocalDetector | Callable[[], LocalDetector] | None = None,
     ):
         if feature_reuse and not optimize_graph:
             raise DetectorConfigError(
@@ -115,14 +116,8 @@ class GlobalDetector(OnnxDetector):
         )
         if score_threshold is None:
             score_threshold = default_score_threshold(second_stage is not None)
-        self.tile_detector = tile_detector
         # With tiles, a box one detector misses counts half its score: keep candidates down to half.
         own_threshold = score_threshold / 2 if tile_detector is not None else score_threshold
-        if tile_detector is not None and tile_detector.score_threshold > own_threshold + 1e-9:
-            raise DetectorConfigError(
-                f"tile_detector: its score threshold {tile_detector.score_threshold:g} must be at most "
-                f"{own_threshold:g}, half the fused threshold {score_threshold:g}"
-            )
         inputs = self._open(
             model_path,
             DEFAULT_GLOBAL_MODEL,
@@ -139,6 +134,14 @@ class GlobalDetector(OnnxDetector):
             )
         for model_input in inputs:
             check_image_input(self.model_path, model_input, "(1, 3, H, W) float32 RGB frames (previous, current)")
+        if tile_detector is not None and not isinstance(tile_detector, LocalDetector):
+            tile_detector = tile_detector()
+        if tile_detector is not None and tile_detector.score_threshold > own_threshold + 1e-9:
+            raise DetectorConfigError(
+                f"tile_detector: its score threshold {tile_detector.score_threshold:g} must be at most "
+                f"{own_threshold:g}, half the fused threshold {score_threshold:g}"
+            )
+        self.tile_detector: LocalDetector | None = tile_detector
         self.input_names = [i.name for i in inputs]
         self.dual_frame = len(inputs) == 2
         self.multiple = int(self.card.get("input_multiple", 64))

@@ -188,7 +188,7 @@ class SecondStage:
         if not path.is_file():
             raise DetectorConfigError(
                 f"{path}: second-stage classifier not found (it belongs beside the detector model; "
-                "set detector.second_stage: null to run the detectors without it)"
+                "set detector.second_stage: null and detector.tile_fusion: false to run the detectors without it)"
             )
         self.session, self.card = open_session(path, providers, num_threads, self.EXPECTATION)
         self.model_path = path
@@ -312,7 +312,8 @@ def load_second_stage(
         where = f"beside the detector model {detector_model}" if choice == BESIDE else "at the path given"
         raise DetectorConfigError(
             f"{path}: second-stage classifier not found {where}; "
-            "set detector.second_stage: null (second_stage=None) to run the detector alone"
+            "set detector.second_stage: null with detector.tile_fusion: false (in Python: second_stage=None) "
+            "to run the detector alone"
         )
     return SecondStage(path, providers=providers, score_threshold=score_threshold, classes=classes)
 

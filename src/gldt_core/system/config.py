@@ -23,7 +23,7 @@ Example (every key shown with its default)::
                               # null = when present, false = never, true = required
       second_stage: beside    # crop classifier re-scoring both detectors' candidates:
                               # beside = second_stage.onnx next to the global model, a path, or null
-      tile_fusion: false      # GD frames also run the local model over tiles of the frame and
+      tile_fusion: true       # GD frames also run the local model over tiles of the frame and
                               # fuse its calibrated boxes with AM-YOLO's (gldt_core.detect.fusion);
                               # needs the second stage; frames letterboxed below 0.8 (1080p) skip it
     tracker:
@@ -91,7 +91,7 @@ class DetectorSettings:
     nested_threshold: float | None = 0.8
     feature_reuse: bool | None = None
     second_stage: str | None = "beside"
-    tile_fusion: bool = False
+    tile_fusion: bool = True
 
     def __post_init__(self) -> None:
         if self.score_threshold is not None and not 0.0 <= self.score_threshold <= 1.0:
@@ -103,7 +103,10 @@ class DetectorSettings:
         if not self.providers:
             raise ValueError("detector.providers must name at least one onnxruntime provider")
         if self.tile_fusion and self.second_stage is None:
-            raise ValueError("detector.tile_fusion needs the second stage: it averages calibrated scores")
+            raise ValueError(
+                "detector.tile_fusion needs the second stage (it averages calibrated scores): "
+                "with second_stage: null set tile_fusion: false"
+            )
 
 
 @dataclass(frozen=True)

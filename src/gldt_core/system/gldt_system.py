@@ -23,6 +23,7 @@ import logging
 import math
 import time
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Any, Protocol, cast
 
 import numpy as np
@@ -164,10 +165,10 @@ def build_detectors(config: SystemConfig) -> tuple[GlobalDetectorLike, LocalDete
     if settings.score_threshold is not None:
         kwargs["score_threshold"] = settings.score_threshold
     tile_detector = None
-    if settings.tile_fusion:
+    if settings.tile_fusion:  # built once AM-YOLO has opened, so its errors come first
         from gldt_core.detect.fusion import build_tile_detector
 
-        tile_detector = build_tile_detector(settings.local_model, kwargs)
+        tile_detector = partial(build_tile_detector, settings.local_model, kwargs)
     global_detector = detect.GlobalDetector(
         model_path=settings.global_model, feature_reuse=settings.feature_reuse, tile_detector=tile_detector, **kwargs
     )

@@ -46,8 +46,9 @@ class GlobalDetectorNode(GldtNode):
         super().__init__("global_detector", **kwargs)
         settings = detector_kwargs(self.param)
         tiles = None
-        if self.param("tile_fusion"):  # the local model over tiles too (gldt_core.detect.fusion)
-            tiles = build_tile_detector(self.param("tile_model_path") or None, settings)
+        if self.param("tile_fusion"):  # the local model over tiles too (gldt_core.detect.fusion),
+            # built once AM-YOLO has opened, so its errors come first
+            tiles = functools.partial(build_tile_detector, self.param("tile_model_path") or None, settings)
         self.detector = GlobalDetector(**settings, tile_detector=tiles)
         self.classes = parse_classes(self.param("classes"))
         # On a small CPU AM-YOLO takes longer than a frame period, so during a GD stretch at 30 Hz
