@@ -128,8 +128,8 @@ def test_the_shipped_balanced_models_config_points_at_the_shipped_files(tmp_path
 
 @pytest.mark.parametrize("name", sorted(path.name for path in (CONFIGS / "run").glob("*.yaml")))
 def test_every_shipped_run_config_loads(name):
-    """A default that changes (tile fusion, on since the second stage calibrates both detectors)
-    must not leave a shipped config that the loader refuses."""
+    """A default that some configs must turn off (tile fusion, which needs the second stage) must
+    not leave a shipped config that the loader refuses."""
     config = load_config(CONFIGS / "run" / name)
     assert config.detector.second_stage is not None or not config.detector.tile_fusion
 
