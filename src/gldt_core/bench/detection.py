@@ -1,10 +1,12 @@
 """``gldt bench detection``: accuracy and latency of the detectors, with and without the second stage.
 
-Rows: AM-YOLO and the local model each with the second stage (``+2nd``, the default the GL-DT
-system runs) and alone, AM-YOLO's twin without STFF (alone), and ``fused+2nd``: the two ``+2nd``
+Rows: AM-YOLO and the local model each with the second stage (``+2nd``, as the GL-DT system
+runs them) and alone, AM-YOLO's twin without STFF (alone), and ``fused+2nd``: the two ``+2nd``
 rows' boxes of each frame fused by the mean of their calibrated scores
 (:mod:`gldt_core.detect.fusion`; a box one detector misses counts 0 there), which costs both
-detectors' time.
+detectors' time. ``fused+2nd`` is the system's default GD frame (``detector.tile_fusion``) where
+a frame is letterboxed at 0.8 of its size or more (the real 640x512 clips); ``AM-YOLO+2nd`` is
+its GD frame below that (1080p).
 
 Accuracy (drone class, IoU-matched as in COCO; see :mod:`gldt_core.eval.detection_metrics`):
 
