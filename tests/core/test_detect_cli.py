@@ -69,3 +69,29 @@ def test_detect_reports_unreadable_video_and_missing_model(
     )
     assert "m.onnx" in capsys.readouterr().err
     assert not (tmp_path / "o.txt").exists()
+
+
+def test_global_detect_fuses_tiles_as_gldt_run_does_unless_told_not_to(video: Path, tmp_path: Path) -> None:
+    """By default `gldt detect` writes the boxes of gldt run's GD frames (AM-YOLO fused with the
+    local model over tiles, ``detector.tile_fusion``); ``--no-tile-fusion`` writes AM-YOLO's alone."""
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.fusion import build_tile_detector
+    from gldt_core.detect.video import detect_frames, iter_video_frames
+
+    common = ["--video", str(video), "--score-threshold", "0.02", "--classes", "all", "--threads", "1"]
+    kwargs = {"score_threshold": 0.02, "classes": None, "num_threads": 1}
+    expected = {
+        "fused": GlobalDetector(tile_detector=build_tile_detector(None, dict(kwargs)), **kwargs),
+        "alone": GlobalDetector(**kwargs),
+    }
+    written = {}
+    for name, flags in (("fused", []), ("alone", ["--no-tile-fusion"])):
+        out = tmp_path / f"{name}.txt"
+        assert main(["detect", *common, "--out", str(out), "--no-progress", *flags]) == 0
+        written[name] = read_mot(out)
+        rows = detect_frames(iter_video_frames(str(video)), expected[name])
+        assert len(written[name]) == len(rows)
+        np.testing.assert_allclose(np.sort(written[name][:, 6]), np.sort(rows[:, 6]), atol=1e-4)
+    assert len(written["fused"]) != len(written["alone"]) or not np.allclose(
+        np.sort(written["fused"][:, 6]), np.sort(written["alone"][:, 6])
+    ), "the fused rows are not AM-YOLO's"

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+from functools import partial
+from typing import Any
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -11,7 +13,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run a detector on every frame of a video and write MOTChallenge detections",
         description=(
             "Writes `frame,-1,x,y,w,h,score,-1,-1,-1` lines (frame 1-based, full-frame pixels). The global "
-            "detector pairs each frame with its predecessor; the local detector tiles the frame into ROIs."
+            "detector pairs each frame with its predecessor and, as gldt run's GD frames do by default, fuses "
+            "AM-YOLO's boxes with the local model's over tiles of the frame (--no-tile-fusion: AM-YOLO alone); "
+            "the local detector tiles the frame into ROIs."
         ),
     )
     parser.add_argument("--video", required=True, help="input video (anything OpenCV decodes)")
@@ -32,6 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "model, the default), a path, or 'none'",
     )
     parser.add_argument(
+        "--no-tile-fusion",
+        action="store_true",
+        help="global detector: AM-YOLO's boxes alone, not fused with the shipped local model's over 300 px tiles "
+        "(detector.tile_fusion; the fusion needs the second stage, so --second-stage none implies this)",
+    )
+    parser.add_argument(
         "--classes", choices=("drone", "all"), default="drone", help="write drone boxes only (default) or every class"
     )
     parser.add_argument("--threads", type=int, default=None, help="onnxruntime intra-op threads")
@@ -46,21 +56,27 @@ def _run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from gldt_core.detect import DRONE_CLASS_ID, GlobalDetector, LocalDetector
+    from gldt_core.detect.fusion import build_tile_detector
     from gldt_core.detect.video import detect_frames, iter_video_frames
     from gldt_core.io.mot import write_mot
 
     providers = tuple(p.strip() for p in args.providers.split(",") if p.strip())
-    cls = GlobalDetector if args.detector == "global" else LocalDetector
     # Asked about drones only, a box is a drone whenever its drone score passes (decode_output).
-    classes = (DRONE_CLASS_ID,) if args.classes == "drone" else None
-    detector = cls(
-        model_path=args.model,
-        providers=providers,
-        score_threshold=args.score_threshold,
-        num_threads=args.threads,
-        classes=classes,
-        second_stage=None if args.second_stage == "none" else args.second_stage,
-    )
+    settings: dict[str, Any] = {
+        "providers": providers,
+        "score_threshold": args.score_threshold,
+        "num_threads": args.threads,
+        "classes": (DRONE_CLASS_ID,) if args.classes == "drone" else None,
+        "second_stage": None if args.second_stage == "none" else args.second_stage,
+    }
+    detector: GlobalDetector | LocalDetector
+    if args.detector == "local":
+        detector = LocalDetector(model_path=args.model, **settings)
+    else:
+        fuse = not args.no_tile_fusion and settings["second_stage"] is not None
+        # The tile detector is built once AM-YOLO has opened, so its errors come first.
+        tiles = partial(build_tile_detector, None, settings) if fuse else None
+        detector = GlobalDetector(model_path=args.model, tile_detector=tiles, **settings)
     frames = tqdm(
         iter_video_frames(args.video), desc=f"detect ({args.detector})", unit="frame", disable=args.no_progress
     )
