@@ -92,6 +92,13 @@ def test_global_detect_fuses_tiles_as_gldt_run_does_unless_told_not_to(video: Pa
         rows = detect_frames(iter_video_frames(str(video)), expected[name])
         assert len(written[name]) == len(rows)
         np.testing.assert_allclose(np.sort(written[name][:, 6]), np.sort(rows[:, 6]), atol=1e-4)
+    # Without the second stage there are no calibrated scores to fuse: AM-YOLO alone either way.
+    raw = {}
+    for name, flags in (("raw", []), ("raw_alone", ["--no-tile-fusion"])):
+        out = tmp_path / f"{name}.txt"
+        assert main(["detect", *common, "--out", str(out), "--no-progress", "--second-stage", "none", *flags]) == 0
+        raw[name] = read_mot(out)
+    np.testing.assert_array_equal(raw["raw"], raw["raw_alone"])
     assert len(written["fused"]) != len(written["alone"]) or not np.allclose(
         np.sort(written["fused"][:, 6]), np.sort(written["alone"][:, 6])
     ), "the fused rows are not AM-YOLO's"

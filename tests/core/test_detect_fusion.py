@@ -153,3 +153,27 @@ def test_tile_fusion_is_a_config_key_on_by_default_that_needs_the_second_stage(t
     assert "\n" not in str(error.value) and "tile_fusion: false" in str(error.value)
     (folder / "alone.yaml").write_text("detector: {second_stage: null, tile_fusion: false}\n")
     assert load_config(folder / "alone.yaml").detector.second_stage is None
+
+
+def test_the_global_model_opens_before_the_tile_detector_is_built(tmp_path: object) -> None:
+    """A broken global model is the error a user sees, not one of the tile detector's: the function
+    that builds it is called only once AM-YOLO has opened, and what it returns must be a
+    LocalDetector."""
+    from pathlib import Path
+
+    from gldt_core.detect import GlobalDetector
+    from gldt_core.detect.session import DetectorConfigError
+
+    calls: list[int] = []
+
+    def tiles() -> object:
+        calls.append(1)
+        return object()
+
+    missing = Path(str(tmp_path)) / "missing.onnx"
+    with pytest.raises((DetectorConfigError, FileNotFoundError), match="missing.onnx"):
+        GlobalDetector(missing, tile_detector=tiles, num_threads=1)  # type: ignore[arg-type]
+    assert calls == []
+    with pytest.raises(TypeError, match="not a LocalDetector"):
+        GlobalDetector(tile_detector=tiles, num_threads=1)  # type: ignore[arg-type]
+    assert calls == [1]

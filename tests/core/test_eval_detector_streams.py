@@ -172,6 +172,27 @@ def test_the_shipped_detector_key_covers_its_files_and_threshold_without_buildin
     assert {Path(DEFAULT_GLOBAL_MODEL).name, "second_stage.onnx"} <= names
 
 
+def test_the_streams_are_am_yolos_boxes_alone_whatever_the_fusion_setting(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """The tracking benchmark's real profiles are AM-YOLO's GD boxes (no tile fusion), the same
+    stream (key and detector) whether or not the config fuses tiles."""
+    import dataclasses
+
+    import gldt_core.system.gldt_system as system
+    from gldt_core.system.config import SystemConfig
+
+    built: list[bool] = []
+    monkeypatch.setattr(system, "build_detectors", lambda config: (built.append(config.detector.tile_fusion), None))
+    fused = SystemConfig()
+    alone = dataclasses.replace(fused, detector=dataclasses.replace(fused.detector, tile_fusion=False))
+    assert fused.detector.tile_fusion
+    caches = [shipped_detector_cache(config, root=tmp_path) for config in (fused, alone)]
+    assert caches[0].key == caches[1].key
+    caches[0]._make_detector()  # what a clip to compute would build
+    assert built == [False]
+
+
 def test_drone_clips_alternate_the_two_validation_splits(tmp_path: Path) -> None:
     (tmp_path / "videos").mkdir()
     (tmp_path / "gt").mkdir()

@@ -14,7 +14,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Writes `frame,-1,x,y,w,h,score,-1,-1,-1` lines (frame 1-based, full-frame pixels). The global "
             "detector pairs each frame with its predecessor and, as gldt run's GD frames do by default, fuses "
-            "AM-YOLO's boxes with the local model's over tiles of the frame (--no-tile-fusion: AM-YOLO alone); "
+            "AM-YOLO's boxes with the local model's over tiles of the frame, at this command's --score-threshold "
+            "(--no-tile-fusion: AM-YOLO alone); "
             "the local detector tiles the frame into ROIs."
         ),
     )

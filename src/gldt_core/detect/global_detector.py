@@ -116,6 +116,8 @@ class GlobalDetector(OnnxDetector):
         )
         if score_threshold is None:
             score_threshold = default_score_threshold(second_stage is not None)
+        if not optimize_graph:
+            tile_detector = None  # opened for its geometry only: it never scores boxes
         # With tiles, a box one detector misses counts half its score: keep candidates down to half.
         own_threshold = score_threshold / 2 if tile_detector is not None else score_threshold
         inputs = self._open(
@@ -134,8 +136,12 @@ class GlobalDetector(OnnxDetector):
             )
         for model_input in inputs:
             check_image_input(self.model_path, model_input, "(1, 3, H, W) float32 RGB frames (previous, current)")
-        if tile_detector is not None and not isinstance(tile_detector, LocalDetector):
+        if callable(tile_detector) and not isinstance(tile_detector, LocalDetector):
             tile_detector = tile_detector()
+            if not isinstance(tile_detector, LocalDetector):
+                raise TypeError(
+                    f"tile_detector: the function returned {type(tile_detector).__name__}, not a LocalDetector"
+                )
         if tile_detector is not None and tile_detector.score_threshold > own_threshold + 1e-9:
             raise DetectorConfigError(
                 f"tile_detector: its score threshold {tile_detector.score_threshold:g} must be at most "

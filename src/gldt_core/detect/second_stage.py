@@ -188,7 +188,8 @@ class SecondStage:
         if not path.is_file():
             raise DetectorConfigError(
                 f"{path}: second-stage classifier not found (it belongs beside the detector model; "
-                "set detector.second_stage: null and detector.tile_fusion: false to run the detectors without it)"
+                "to run without it: detector.second_stage: null and detector.tile_fusion: false in a config, "
+                "second_stage:=none tile_fusion:=false on a node, --second-stage none for gldt detect)"
             )
         self.session, self.card = open_session(path, providers, num_threads, self.EXPECTATION)
         self.model_path = path
@@ -312,8 +313,9 @@ def load_second_stage(
         where = f"beside the detector model {detector_model}" if choice == BESIDE else "at the path given"
         raise DetectorConfigError(
             f"{path}: second-stage classifier not found {where}; "
-            "set detector.second_stage: null with detector.tile_fusion: false (in Python: second_stage=None) "
-            "to run the detector alone"
+            "to run the detector alone: detector.second_stage: null and detector.tile_fusion: false in a config, "
+            "second_stage:=none tile_fusion:=false on a node, --second-stage none for gldt detect, "
+            "second_stage=None in Python"
         )
     return SecondStage(path, providers=providers, score_threshold=score_threshold, classes=classes)
 

@@ -215,13 +215,15 @@ def shipped_detector_cache(
     config: Any = None, score_threshold: float = DEFAULT_SCORE_THRESHOLD, root: Path | None = None
 ) -> DetectorStreamCache:
     """The cache of the configured (by default the shipped) global detector with its second
-    stage, at ``score_threshold``; the detector is built only when a clip must be computed."""
+    stage, at ``score_threshold``; the detector is built only when a clip must be computed. The
+    streams are AM-YOLO's boxes alone (``tile_fusion`` off): the tracking benchmark's real
+    profiles were defined and measured on them."""
     from gldt_core.detect.shipped import DEFAULT_GLOBAL_MODEL
     from gldt_core.system.config import SystemConfig
     from gldt_core.system.gldt_system import build_detectors
 
     config = config or SystemConfig()
-    settings = dataclasses.replace(config.detector, score_threshold=float(score_threshold))
+    settings = dataclasses.replace(config.detector, score_threshold=float(score_threshold), tile_fusion=False)
     config = dataclasses.replace(config, detector=settings).with_changes(local_enabled=False)
     model = Path(settings.global_model) if settings.global_model else Path(DEFAULT_GLOBAL_MODEL)
     files = global_model_files(model, settings.second_stage)
@@ -230,6 +232,7 @@ def shipped_detector_cache(
         "classes": list(settings.classes) if settings.classes is not None else None,
         "nested_threshold": settings.nested_threshold,
         "second_stage": settings.second_stage,
+        "tile_fusion": settings.tile_fusion,
     }
     key = stream_key(files, shaping)
     stage = "with second stage" if settings.second_stage is not None else "without second stage"

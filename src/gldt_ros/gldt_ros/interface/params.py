@@ -54,7 +54,7 @@ _SECOND_STAGE = ParamSpec(
     "second_stage",
     _DETECTOR_DEFAULTS.second_stage or "none",
     "Crop classifier that re-scores and re-boxes the candidates: beside (second_stage.onnx next to the model), "
-    "a path, or none",
+    "a path, or none (on global_detector with tile_fusion false: the fusion averages calibrated scores)",
 )
 _NESTED = ParamSpec(
     "nested_threshold",
