@@ -214,3 +214,25 @@ def test_each_way_back_of_a_lost_track_is_recorded_when_asked() -> None:
     silent = JPTrack()
     silent.update(np.array([[0.0, 0.0, 10.0, 10.0, 0.9]]), 0.0)
     assert silent.reattachments is None  # recorded only when asked
+
+
+def test_pmr_leaves_a_just_lost_tracks_outlier_to_it_rather_than_to_an_old_lost_track() -> None:
+    """Target 1 is seen 20 frames and then lost; target 2, tracked throughout, is boxed once 24 px
+    off its path, where target 1 would now be. That detection is in reach of target 2's track,
+    lost this frame: PMR leaves it, and no frame shows target 1's id on target 2. With the
+    deferral off, the old identity surfaces for that frame (two identity switches)."""
+
+    def shown_ids(config: JPTrackConfig) -> list[list[int]]:
+        tr = JPTrack(config)
+        shown = []
+        for frame in range(64):
+            rows = [[100 + 3.0 * frame - 5, 195, 100 + 3.0 * frame + 5, 205, 0.9]] if frame < 20 else []
+            y = 200 if frame == 52 else 224
+            rows.append([251, y - 5, 261, y + 5, 0.9])
+            shown.append(tr.update(np.array(rows), frame / 30)[:, 4].astype(int).tolist())
+        return shown
+
+    deferred = shown_ids(JPTrackConfig())
+    assert deferred[52] == [] and all(ids == [2] for ids in deferred[21:52] + deferred[53:])
+    taken = shown_ids(JPTrackConfig(pmr_defer_to_just_lost=False))
+    assert taken[52] == [1] and taken[53:] == deferred[53:]

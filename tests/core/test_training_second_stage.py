@@ -1,4 +1,5 @@
-"""Training the second stage: resumable to the same weights, calibration, and refusals that overwrite nothing."""
+"""Training the second stage: resumable to the same weights, calibration, box correction, and
+refusals that overwrite nothing."""
 
 from __future__ import annotations
 
@@ -9,12 +10,13 @@ import numpy as np
 import pytest
 import torch
 
-from gldt_core.detect.second_stage import CROP_SIZE, SecondStage
+from gldt_core.detect.second_stage import CROP_SIZE, SecondStage, encoded_iou
 from gldt_core.training.crops import SOURCES, CropSet, label_boxes
 from gldt_core.training.second_stage import (
     DEFAULTS,
     ResumeError,
     calibrate,
+    evaluate,
     expected_calibration_error,
     export_second_stage,
     fit_classifier,
@@ -31,26 +33,30 @@ def tiny_config(epochs: int = 3) -> dict:
     return config
 
 
-def toy_crops(count: int = 64, seed: int = 0) -> CropSet:
-    """Dark squares of class 1 (drone) and 2 (bird, smaller), background noise otherwise."""
+def toy_crops(count: int = 64, seed: int = 0, margin: float = 1.0) -> CropSet:
+    """Dark squares of class 1 (drone) and 2 (bird, smaller), background noise otherwise; an
+    object is annotated ``margin`` times its square's side, centred on it."""
     rng = np.random.default_rng(seed)
     crops = rng.integers(140, 180, size=(count, 6, CROP_SIZE, CROP_SIZE)).astype(np.uint8)
     labels = rng.integers(0, 3, size=count)
     geometry = np.zeros((count, 4), np.float32)
     quality = np.zeros(count, np.float32)
+    target = np.zeros((count, 4), np.float32)
     for i, label in enumerate(labels):
         # The candidate box is a third of the crop; a drone fills it half the time (IoU 1 or 0.25).
         geometry[i, 2:] = np.log(1 / 3)
         if label:
             half = 8 if label == 1 else 3
             crops[i, :, 32 - half : 32 + half, 32 - half : 32 + half] = 20
-            quality[i] = rng.choice([1.0, 0.25])
-            geometry[i, 2:] = np.log(2 * half / CROP_SIZE) + (0.0 if quality[i] == 1.0 else np.log(2.0))
+            target[i, 2:] = np.log(2 * half * margin / CROP_SIZE)
+            geometry[i, 2:] = np.log(2 * half / CROP_SIZE) + (0.0 if rng.random() < 0.5 else np.log(2.0))
+            quality[i] = encoded_iou(geometry[i : i + 1], target[i : i + 1])[0]
     return CropSet(
         crops=crops,
         labels=labels.astype(np.int64),
         geometry=geometry,
         quality=quality,
+        target=target,
         scores=rng.uniform(0.01, 0.9, count).astype(np.float32),
         sources=np.full(count, SOURCES.index("global"), np.int8),
         clips=np.zeros(count, np.int32),
@@ -93,6 +99,10 @@ def test_resume_refusals_are_one_line_and_touch_nothing(tmp_path: Path) -> None:
     other["model"]["hidden"] = 16
     with pytest.raises(ResumeError, match="the config asks for"):
         load_resume(good, other)
+    correcting = json.loads(json.dumps(short))
+    correcting["model"]["box_correction"] = True
+    with pytest.raises(ResumeError, match="the config asks for"):
+        load_resume(good, correcting)
     longer = json.loads(json.dumps(short))
     longer["train"]["epochs"] = 5
     with pytest.raises(ResumeError, match="scheduled for"):
@@ -128,8 +138,41 @@ def test_calibration_lowers_the_calibration_error_and_exports_a_usable_model(tmp
     frame = np.full((128, 128, 3), 160, np.uint8)
     frame[56:72, 56:72] = 20
     rows = stage.rescore(frame, frame, np.array([[58.0, 58, 70, 70, 0.4, 1]]))
-    assert rows.shape == (1, 9)
-    np.testing.assert_allclose(rows[0, :4], [58, 58, 70, 70])
+    assert rows.shape == (1, 9) and not stage.corrects_boxes
+    np.testing.assert_allclose(rows[0, :4], [58, 58, 70, 70])  # without the correction head: the box stays
+
+
+def test_the_correction_learns_the_annotations_margin_and_moves_the_boxes_at_run_time(tmp_path: Path) -> None:
+    """Objects annotated at 1.5x their square: the corrected boxes overlap the annotations better
+    than the candidates did, on crops the model never trained on, and in the exported model."""
+    torch.set_num_threads(1)
+    config = tiny_config(12)
+    config["model"] = {"channels": [8, 8, 16, 16], "hidden": 32, "box_correction": True}
+    fitted = fit_classifier(config, toy_crops(256, margin=1.5), toy_crops(32, 1, 1.5), tmp_path, progress=False)
+    assert fitted is not None
+    figures = evaluate(fitted[0], toy_crops(128, seed=3, margin=1.5))
+    assert figures["drone_iou_mean_after"] > figures["drone_iou_mean_before"] + 0.1
+    assert figures["drone_at_iou_0.5_after"] > figures["drone_at_iou_0.5_before"]
+    path = export_second_stage(fitted[0], tmp_path / "second_stage.onnx", {"calibration": {"slope": 1.0, "bias": 0.0}})
+    stage = SecondStage(path, score_threshold=0.0)
+    assert stage.corrects_boxes
+    frame = np.full((256, 256, 3), 160, np.uint8)
+    frame[120:136, 120:136] = 20  # a 16 px drone, annotated 24 px
+    rows = stage.rescore(frame, frame, np.array([[120.0, 120, 136, 136, 0.4, 1]]))
+    sides = rows[0, 2:4] - rows[0, :2]
+    assert np.all(sides > 17) and np.all(np.abs((rows[0, :2] + rows[0, 2:4]) / 2 - 128) < 3)
+
+
+def test_decoding_inverts_encoding_and_the_encoded_iou_is_the_boxes_iou() -> None:
+    from gldt_core.detect.second_stage import crop_windows, decode_boxes, encode_boxes
+    from gldt_core.eval.detection_metrics import box_iou
+
+    boxes = np.array([[10.0, 20, 30, 28], [100, 100, 164, 180], [5, 5, 6, 9]])
+    others = boxes + np.array([[2.0, -1, 6, 0], [-10, 5, 0, 30], [0, 0, 3, 0]])
+    windows = crop_windows(boxes)
+    np.testing.assert_allclose(decode_boxes(encode_boxes(boxes, windows), windows), boxes, atol=1e-9)
+    iou = encoded_iou(encode_boxes(boxes, windows), encode_boxes(others, windows))
+    np.testing.assert_allclose(iou, np.diag(box_iou(boxes, others)), atol=1e-9)
 
 
 def test_expected_calibration_error_of_a_perfect_and_a_wrong_forecast() -> None:
@@ -149,8 +192,8 @@ def test_labels_come_from_the_object_a_candidate_sits_on() -> None:
             [128, 118, 158, 148],  # grazing the drone: left out
         ]
     )
-    labels, quality = label_boxes(boxes, gt, classes)
-    assert labels.tolist() == [1, 2, 0, -1]
+    labels, quality, matched = label_boxes(boxes, gt, classes)
+    assert labels.tolist() == [1, 2, 0, -1] and matched.tolist() == [0, 1, -1, -1]
     assert quality[0] == pytest.approx(25 * 20 / (40 * 30))  # its IoU with the drone's box
     assert quality[1] == pytest.approx(16 * 16 / (20 * 20)) and quality[2] == 0.0
 

@@ -7,14 +7,20 @@ crop around it from the current frame and the same crop from the previous frame 
 seen: a bird flaps, an airplane glides), both resized to ``size x size``, and the candidate's box
 relative to the crop (:func:`encode_boxes`) go through a small CNN that answers
 
-* class probabilities over background / drone / bird / airplane, and
-* the quality of the candidate's box: its predicted IoU with the object's annotated box.
+* class probabilities over background / drone / bird / airplane,
+* where the object's annotated box lies, as a correction to the candidate's box in the crop's
+  terms (:func:`encode_boxes`; a model without this output keeps the detector's boxes), and
+* the quality of the box: its predicted IoU with the object's annotated box (of the corrected
+  box where the model corrects boxes).
 
-The drone probability, the predicted IoU and the detector's score multiply into one
+The detectors learn small, tight boxes from the synthetic scenes in their training mix, while the
+Halmstad annotators box a drone with a margin; the correction learns that margin from the
+annotations of the training clips, the way a two-stage detector's second stage refines its
+proposals. The drone probability, the predicted IoU and the detector's score multiply into one
 :func:`evidence`, and a monotone logistic calibration fitted on calibration clips the classifier
 never trained on (the model card's ``calibration``) turns it into the probability that the
 candidate is a drone boxed at IoU 0.5, so that one threshold means the same in the detector,
-the scheduler and the tracker. The boxes stay the detector's.
+the scheduler and the tracker.
 
 The crop geometry (:func:`crop_windows`, :func:`cut_crops`, :func:`encode_boxes`) is the one
 implementation used both to cut training crops and at run time.
@@ -103,6 +109,30 @@ def encode_boxes(boxes: np.ndarray, windows: np.ndarray) -> np.ndarray:
     )
 
 
+def decode_boxes(encoded: np.ndarray, windows: np.ndarray) -> np.ndarray:
+    """``(N, 4)`` ``[x1, y1, x2, y2]``: the inverse of :func:`encode_boxes` for the same windows."""
+    encoded = np.asarray(encoded, dtype=np.float64).reshape(-1, 4)
+    windows = np.asarray(windows, dtype=np.float64).reshape(-1, 3)
+    side = windows[:, 2]
+    cx = windows[:, 0] + encoded[:, 0] * side
+    cy = windows[:, 1] + encoded[:, 1] * side
+    w = np.exp(np.clip(encoded[:, 2], -20, 2)) * side
+    h = np.exp(np.clip(encoded[:, 3], -20, 2)) * side
+    return np.stack([cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2], axis=1)
+
+
+def encoded_iou(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``(N,)`` IoU of row-paired boxes given in the terms of :func:`encode_boxes` for one window
+    per row (IoU does not depend on where the window lies or how large it is)."""
+    unit = np.tile([0.0, 0.0, 1.0], (len(np.asarray(a).reshape(-1, 4)), 1))
+    first, second = decode_boxes(a, unit), decode_boxes(b, unit)
+    lo = np.maximum(first[:, :2], second[:, :2])
+    hi = np.minimum(first[:, 2:], second[:, 2:])
+    inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
+    union = np.prod(first[:, 2:] - first[:, :2], axis=1) + np.prod(second[:, 2:] - second[:, :2], axis=1) - inter
+    return np.asarray(inter / np.maximum(union, 1e-12))
+
+
 def log_softmax(logits: np.ndarray) -> np.ndarray:
     shifted = logits - logits.max(axis=1, keepdims=True)
     return shifted - np.log(np.exp(shifted).sum(axis=1, keepdims=True))
@@ -153,7 +183,7 @@ class SecondStage:
 
     ``candidates`` are detector rows ``[x1, y1, x2, y2, score, ...]`` in the pixels of the images
     given; the answer keeps at most ``max_candidates`` of them over all pairs of one call
-    (highest detector score first), with their boxes, as rows
+    (highest detector score first), with their boxes (corrected where the model corrects boxes), as rows
     ``[x1, y1, x2, y2, p, class_id, p_drone, p_bird, p_airplane]``: ``p`` the calibrated
     probability of the tracked ``classes``, ``class_id`` the most probable of the tracked classes
     (a box is a drone when its drone probability passes), then the probabilities of the three
@@ -166,7 +196,7 @@ class SecondStage:
 
     EXPECTATION = (
         f"inputs (N, 6, {CROP_SIZE}, {CROP_SIZE}) float crops in [0, 255] and (N, 4) box geometry, "
-        "outputs (N, 4) class logits and (N, 1) box-quality logits"
+        "outputs (N, 4) class logits, (N, 1) box-quality logits and, where it corrects boxes, (N, 4) box corrections"
     )
     #: Detector score down to which candidates are handed to the second stage (the crops it was trained on).
     CANDIDATE_SCORE = 0.01
@@ -195,9 +225,11 @@ class SecondStage:
         self.model_path = path
         inputs = self.session.get_inputs()
         outputs = self.session.get_outputs()
-        if len(inputs) != 2 or len(outputs) != 2 or list(inputs[0].shape[1:]) != [6, CROP_SIZE, CROP_SIZE]:
+        if len(inputs) != 2 or len(outputs) not in (2, 3) or list(inputs[0].shape[1:]) != [6, CROP_SIZE, CROP_SIZE]:
             raise DetectorConfigError(f"{path}: not a second-stage classifier; expected {self.EXPECTATION}")
         self.input_names = [i.name for i in inputs]
+        #: Whether the model corrects the detector's boxes toward the annotations' (a third output).
+        self.corrects_boxes = len(outputs) == 3
         self.calibration = Calibration.from_card(self.card, str(path))
         self.context = float(self.card.get("context", CONTEXT))
         self.min_side = float(self.card.get("min_side", MIN_SIDE))
@@ -213,12 +245,17 @@ class SecondStage:
         self.max_candidates = int(max_candidates)
         self.nms_iou = float(nms_iou)
 
-    def classify(self, crops: np.ndarray, geometry: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Class logits ``(N, 4)`` and box-quality logits ``(N,)`` of crops cut by :func:`cut_crops`
-        around boxes whose :func:`encode_boxes` is ``geometry``."""
+    def classify(self, crops: np.ndarray, geometry: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Class logits ``(N, 4)``, box-quality logits ``(N,)`` and the corrected boxes ``(N, 4)``
+        (in the terms of :func:`encode_boxes`; ``geometry`` itself where the model corrects no
+        boxes) of crops cut by :func:`cut_crops` around boxes whose :func:`encode_boxes` is ``geometry``."""
         feed = dict(zip(self.input_names, (crops.astype(np.float32), geometry.astype(np.float32))))
-        logits, quality = self.session.run(None, feed)
-        return np.asarray(logits, dtype=np.float64), np.asarray(quality, dtype=np.float64).reshape(-1)
+        outputs = self.session.run(None, feed)
+        logits, quality = outputs[0], outputs[1]
+        corrected = np.asarray(geometry, dtype=np.float64)
+        if self.corrects_boxes:
+            corrected = corrected + np.asarray(outputs[2], dtype=np.float64).reshape(-1, 4)
+        return np.asarray(logits, dtype=np.float64), np.asarray(quality, dtype=np.float64).reshape(-1), corrected
 
     def rescore(self, previous: np.ndarray | None, frame: np.ndarray, candidates: np.ndarray) -> np.ndarray:
         """The rows of one image pair (``previous`` None: the frame with itself)."""
@@ -241,7 +278,7 @@ class SecondStage:
         scores = np.concatenate([a[:, 4] for a in arrays]) if arrays else np.zeros(0)
         chosen = np.sort(np.argsort(-scores, kind="stable")[: self.max_candidates])
         flat = np.concatenate(arrays) if arrays else np.zeros((0, 5))
-        crops, geometry, owners = [], [], []
+        crops, geometry, windows, owners = [], [], [], []
         for i, (previous, frame, _) in enumerate(items):
             picked = chosen[item_of[chosen] == i]
             if len(picked) == 0:
@@ -249,17 +286,19 @@ class SecondStage:
             window = crop_windows(flat[picked, :4], self.context, self.min_side)
             crops.append(cut_crops(frame if previous is None else previous, frame, window))
             geometry.append(encode_boxes(flat[picked, :4], window))
+            windows.append(window)
             owners.append(picked)
         results = [np.zeros((0, 6 + PROBABILITY_COLUMNS), dtype=np.float32) for _ in items]
         if crops:
-            logits, quality = self.classify(np.concatenate(crops), np.concatenate(geometry))
+            logits, quality, corrected = self.classify(np.concatenate(crops), np.concatenate(geometry))
             picked_all = np.concatenate(owners)
+            boxes = decode_boxes(corrected, np.concatenate(windows)) if self.corrects_boxes else flat[picked_all, :4]
             probabilities = np.exp(log_softmax(logits))
             score = self._score(logits, quality, probabilities, scores[picked_all])
             objects = probabilities[:, 1:] / np.maximum(probabilities[:, 1:].sum(axis=1, keepdims=True), 1e-12)
             tracked = np.asarray(self.classes)
             class_id = tracked[objects[:, tracked - 1].argmax(axis=1)]
-            rows = np.concatenate([flat[picked_all, :4], score[:, None], class_id[:, None], objects], axis=1)
+            rows = np.concatenate([boxes, score[:, None], class_id[:, None], objects], axis=1)
             for i in range(len(items)):
                 mine = rows[item_of[picked_all] == i]
                 mine = mine[mine[:, 4] >= self.score_threshold]

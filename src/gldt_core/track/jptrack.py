@@ -18,6 +18,11 @@ Table I value is a config field with the paper's default. What the paper leaves 
   at 30 Hz): shorter gaps are handled by JCMA, whose first stage sees every recently lost track,
   and fitting a mixture for every single missed frame of 50 targets would break the 10 ms budget.
   The mixture is then fitted once and kept until the track is updated again.
+* A track lost this very frame, or less than ``pmr_min_lost_s`` ago, is not in PMR's
+  competition, yet a detection within its :func:`recovery_radius` is most likely its target
+  seen off its path for a frame (jitter, a part of it boxed). PMR leaves such a detection to the
+  following frames (``pmr_defer_to_just_lost``) rather than hand it to a track lost long ago:
+  otherwise an old identity surfaces on a tracked target for a frame, two identity switches.
 * PMR leaves out the history samples of a track's first ``PMR_SETTLING_HITS`` updates: the
   Kalman velocity starts at 0 and takes a few updates to converge (a constant 5 px/frame target
   reads 0, 1.0 and 2.5 px/frame on its first three), and extrapolated to the loss time those
@@ -127,6 +132,9 @@ class JPTrackConfig:
     # A lost track takes over a tentative track seen where it would be at both sightings, so that
     # a target missed for longer than PMR's gate forgives comes back under its id (module docstring).
     pmr_relink: bool = True
+    # PMR gives no lost track a detection within reach of a track lost under pmr_min_lost_s ago
+    # (module docstring).
+    pmr_defer_to_just_lost: bool = True
     pmr_backend: str = "numpy"  # "numpy" (same EM as scikit-learn, faster) or "sklearn"
     # PMR (stage 3) brings a lost track back only with a detection whose size sqrt(w h) is within
     # this factor of the track's own (module docstring); a large value (1e9) turns the gate off.
@@ -348,6 +356,12 @@ class JPTrack(MultiStageTracker):
         if not long_lost and c.tau_t >= 0.0:
             return rest_high, rest_low  # every score would be 0: nothing can pass the gate
         centres = midpoint(dets[cand, :2], dets[cand, 2:4])
+        just_lost = [tr for tr in lost if t - tr.last_update_t < c.pmr_min_lost_s - 1e-9]
+        if just_lost and c.pmr_defer_to_just_lost:
+            claimed = self._near_prediction(just_lost, centres, t).any(axis=0)
+            cand, centres = cand[~claimed], centres[~claimed]
+            if len(cand) == 0:
+                return rest_high, rest_low
         rows = []
         if long_lost:
             worth = self._worth_modelling([lost[i] for i in long_lost], centres, t)

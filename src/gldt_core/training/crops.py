@@ -8,13 +8,14 @@ what it will be shown at run time and what it must tell apart:
   hard negatives: the birds, airplanes and clouds it takes for drones);
 * ``local``: the local detector's candidates on tiles covering the frame;
 * ``jitter``: every annotated object (drone, bird, airplane) boxed loosely and off-centre, the
-  way the detectors box them, so the refinement learns the annotations' boxes;
+  way the detectors box them, so the box refinement learns the annotations' boxes;
 * ``random``: empty sky and ground away from every object.
 
 Each candidate is labelled from the annotations: the class of the object it sits on (IoU >= 0.2,
 or centre inside it at a comparable size), background when it touches none (IoU < 0.05 and
 centre outside every box), and left out in between. Its box-quality target is its IoU with that
-object's annotated box (0 on background).
+object's annotated box (0 on background), and its refinement target is that annotated box in
+the same crop-relative terms as the candidate's own (:func:`encode_boxes`; zeros on background).
 Clips and scenes are cut one at a time into ``CACHE/<key>/<name>.npz``, so a build that stops resumes.
 Synthetic scenes (:class:`SceneCrops`) add drones of other looks and sizes than the Halmstad
 ones: without them the second stage, having seen only real drones, rejected nearly every drone
@@ -51,7 +52,7 @@ class CropSpec:
     random_boxes: int = 2
     candidate_score: float = 0.01
     seed: int = 0
-    version: int = 2  # what a crop file holds: 2 = box geometry and box quality
+    version: int = 3  # what a crop file holds: 2 = box geometry and box quality, 3 = and the annotated box
 
     def key(self, global_model: Path, local_model: Path) -> str:
         digest = hashlib.sha1(json.dumps(asdict(self), sort_keys=True).encode())
@@ -64,13 +65,15 @@ class CropSpec:
 class CropSet:
     """Crops with labels: ``crops (N, 6, S, S) uint8``, ``labels (N,)`` 0-3, ``geometry (N, 4)`` the
     candidate's box relative to its crop (:func:`encode_boxes`), ``quality (N,)`` its IoU with its
-    object's box (0 on background), ``scores (N,)`` detector score (NaN when not a detector
+    object's box (0 on background), ``target (N, 4)`` that object's annotated box relative to the
+    same crop (zeros on background), ``scores (N,)`` detector score (NaN when not a detector
     candidate), ``sources (N,)`` index into :data:`SOURCES`, ``clips (N,)`` index into ``clip_names``."""
 
     crops: np.ndarray
     labels: np.ndarray
     geometry: np.ndarray
     quality: np.ndarray
+    target: np.ndarray
     scores: np.ndarray
     sources: np.ndarray
     clips: np.ndarray
@@ -85,6 +88,7 @@ class CropSet:
             self.labels[mask],
             self.geometry[mask],
             self.quality[mask],
+            self.target[mask],
             self.scores[mask],
             self.sources[mask],
             self.clips[mask],
@@ -92,13 +96,17 @@ class CropSet:
         )
 
 
-def label_boxes(boxes: np.ndarray, gt_boxes: np.ndarray, gt_classes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``labels (N,)`` (-1: left out) and ``quality (N,)`` (IoU with the object's box, 0 on
-    background) for candidate ``boxes`` on one frame."""
+def label_boxes(
+    boxes: np.ndarray, gt_boxes: np.ndarray, gt_classes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``labels (N,)`` (-1: left out), ``quality (N,)`` (IoU with the object's box, 0 on
+    background) and ``matched (N,)`` (the index of that object in ``gt_boxes``, -1 where none)
+    for candidate ``boxes`` on one frame."""
     labels = np.zeros(len(boxes), dtype=np.int64)
     quality = np.zeros(len(boxes))
+    matched = np.full(len(boxes), -1, dtype=np.int64)
     if len(boxes) == 0 or len(gt_boxes) == 0:
-        return labels, quality
+        return labels, quality, matched
     iou = box_iou(boxes, gt_boxes)
     cx = (boxes[:, 0] + boxes[:, 2]) / 2
     cy = (boxes[:, 1] + boxes[:, 3]) / 2
@@ -117,9 +125,10 @@ def label_boxes(boxes: np.ndarray, gt_boxes: np.ndarray, gt_classes: np.ndarray)
     has = on_object[np.arange(len(boxes)), best]
     labels[has] = gt_classes[best[has]]
     quality[has] = iou[np.flatnonzero(has), best[has]]
+    matched[has] = best[has]
     ambiguous = ~has & ((iou.max(axis=1) >= 0.05) | inside.any(axis=1))
     labels[ambiguous] = -1
-    return labels, quality
+    return labels, quality, matched
 
 
 def _jittered(gt_boxes: np.ndarray, copies: int, rng: np.random.Generator) -> np.ndarray:
@@ -167,7 +176,7 @@ def cut_frames(
     from gldt_core.detect.video import frame_detections
 
     rng = np.random.default_rng([spec.seed, int(hashlib.sha1(name.encode()).hexdigest()[:8], 16)])
-    keys = ("crops", "labels", "geometry", "quality", "scores", "sources")
+    keys = ("crops", "labels", "geometry", "quality", "target", "scores", "sources")
     parts: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for sampled, (prev, frame, gt_boxes, gt_classes) in enumerate(frames, start=1):
         gt_classes = np.where(gt_classes >= 3, 3, gt_classes)  # any other aircraft counts as airplane
@@ -184,7 +193,7 @@ def cut_frames(
         all_boxes = np.concatenate([np.asarray(b, dtype=np.float64).reshape(-1, 4) for b, _, _ in found])
         scores = [np.full(len(b), np.nan) if s is None else np.asarray(s, dtype=np.float64) for b, _, s in found]
         sources = [np.full(len(b), SOURCES.index(source), dtype=np.int8) for b, source, _ in found]
-        labels, quality = label_boxes(all_boxes, gt_boxes, gt_classes)
+        labels, quality, matched = label_boxes(all_boxes, gt_boxes, gt_classes)
         keep = labels >= 0
         if not keep.any():
             continue
@@ -193,6 +202,12 @@ def cut_frames(
         parts["labels"].append(labels[keep])
         parts["geometry"].append(encode_boxes(all_boxes[keep], windows))
         parts["quality"].append(quality[keep])
+        objects = matched[keep]
+        target = np.zeros((len(objects), 4))
+        on = objects >= 0
+        if on.any():
+            target[on] = encode_boxes(np.asarray(gt_boxes, dtype=np.float64)[objects[on]], windows[on])
+        parts["target"].append(target)
         parts["scores"].append(np.concatenate(scores)[keep])
         parts["sources"].append(np.concatenate(sources)[keep])
     if not parts["crops"]:
@@ -202,6 +217,7 @@ def cut_frames(
         "labels": np.concatenate(parts["labels"]).astype(np.int8),
         "geometry": np.concatenate(parts["geometry"]).astype(np.float32),
         "quality": np.concatenate(parts["quality"]).astype(np.float32),
+        "target": np.concatenate(parts["target"]).astype(np.float32),
         "scores": np.concatenate(parts["scores"]).astype(np.float32),
         "sources": np.concatenate(parts["sources"]),
     }
@@ -297,6 +313,7 @@ def build_crops(
         labels=np.concatenate([a["labels"] for a in arrays]).astype(np.int64),
         geometry=np.concatenate([a["geometry"] for a in arrays]),
         quality=np.concatenate([a["quality"] for a in arrays]),
+        target=np.concatenate([a["target"] for a in arrays]),
         scores=np.concatenate([a["scores"] for a in arrays]),
         sources=np.concatenate([a["sources"] for a in arrays]),
         clips=np.concatenate([np.full(len(a["labels"]), i, dtype=np.int32) for i, a in enumerate(arrays)]),

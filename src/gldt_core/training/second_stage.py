@@ -1,4 +1,5 @@
-"""Training the second stage (:mod:`gldt_core.detect.second_stage`): a crop classifier with a box-quality head.
+"""Training the second stage (:mod:`gldt_core.detect.second_stage`): a crop classifier with box
+correction and box-quality heads.
 
 ``gldt train second-stage --config CFG [--resume CKPT]``. The Halmstad training clips are split
 again by name: most train the classifier, every ``calibration_period``-th clip of each category
@@ -33,6 +34,7 @@ from gldt_core.detect.second_stage import (
     MIN_SIDE,
     NUM_CLASSES,
     Calibration,
+    encoded_iou,
     evidence,
 )
 from gldt_core.eval.halmstad_split import clip_category, halmstad_split
@@ -43,7 +45,9 @@ DEFAULTS: dict[str, Any] = {
     "seed": 0,
     "threads": 1,
     "out_dir": "runs/second_stage",
-    "model": {"channels": [16, 32, 64, 96], "hidden": 128},
+    # box_correction: a head that moves each candidate's box toward its object's annotated box
+    # (opt-in: learnt from the training clips' annotation margins, which differ from clip to clip).
+    "model": {"channels": [16, 32, 64, 96], "hidden": 128, "box_correction": False},
     "data": {
         "halmstad_root": None,
         "cache_dir": "/tmp/gldt-cache",
@@ -61,6 +65,7 @@ DEFAULTS: dict[str, Any] = {
         "lr": 0.003,
         "weight_decay": 0.0005,
         "quality_weight": 1.0,
+        "box_weight": 1.0,
         "max_wall_s": None,
     },
 }
@@ -77,9 +82,11 @@ def conv(cin: int, cout: int, stride: int) -> nn.Sequential:
 class CropClassifier(nn.Module):
     """``(N, 6, 64, 64)`` crops (0-255, previous then current BGR) and ``(N, 4)`` box geometry
     (:func:`~gldt_core.detect.second_stage.encode_boxes`) -> class logits ``(N, 4)``, box-quality
-    logit ``(N, 1)`` (the predicted IoU of the box with its object's, as a logit)."""
+    logit ``(N, 1)`` (the predicted IoU of the box with its object's, as a logit) and, with
+    ``box_correction``, the box correction ``(N, 4)`` (added to the geometry, it is the object's
+    annotated box; the quality is then the corrected box's)."""
 
-    def __init__(self, channels: list[int], hidden: int) -> None:
+    def __init__(self, channels: list[int], hidden: int, box_correction: bool = False) -> None:
         super().__init__()
         c0, c1, c2, c3 = channels
         self.features = nn.Sequential(
@@ -94,10 +101,24 @@ class CropClassifier(nn.Module):
         self.classes = nn.Linear(hidden, NUM_CLASSES)
         # The box is known only as numbers, so the quality head sees them beside the image features.
         self.quality = nn.Sequential(nn.Linear(hidden + 4, hidden // 2), nn.SiLU(), nn.Linear(hidden // 2, 1))
+        self.correction: nn.Sequential | None = None
+        if box_correction:
+            self.correction = nn.Sequential(nn.Linear(hidden + 4, hidden // 2), nn.SiLU(), nn.Linear(hidden // 2, 4))
+            last = self.correction[-1]
+            assert isinstance(last, nn.Linear)
+            # A correction starts at none: an untrained head keeps the detector's boxes.
+            nn.init.zeros_(last.weight)
+            nn.init.zeros_(last.bias)
 
-    def forward(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        x = self.neck(self.features(crops / 127.5 - 1.0))
-        return self.classes(x), self.quality(torch.cat([x, geometry], dim=1))
+    def forward(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        x = torch.cat([self.neck(self.features(crops / 127.5 - 1.0)), geometry], dim=1)
+        heads = (self.classes(x[:, :-4]), self.quality(x))
+        return heads if self.correction is None else (*heads, self.correction(x))
+
+    def outputs(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Class logits, quality logit and box correction (zeros without the correction head)."""
+        out = self(crops, geometry)
+        return out[0], out[1], out[2] if len(out) == 3 else torch.zeros_like(geometry)
 
 
 def split_for_calibration(clips: list[str], period: int) -> tuple[list[str], list[str]]:
@@ -125,35 +146,63 @@ def synthetic_scenes(settings: dict[str, Any]) -> list[SceneCrops]:
     return [SceneCrops(spec, scales[index % len(scales)]) for index, spec in enumerate(specs)]
 
 
-def augment(crops: np.ndarray, geometry: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal flips (of the crop and its box) and brightness/contrast jitter, the same for both frames."""
+def augment(
+    crops: np.ndarray, geometry: np.ndarray, target: np.ndarray, rng: np.random.Generator
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Horizontal flips (of the crop, its box and its object's box) and brightness/contrast
+    jitter, the same for both frames."""
     crops = crops.astype(np.float32)
     geometry = geometry.astype(np.float32)
+    target = target.astype(np.float32)
     flip = rng.random(len(crops)) < 0.5
     crops[flip] = crops[flip, :, :, ::-1]
     geometry[flip, 0] = -geometry[flip, 0]
+    target[flip, 0] = -target[flip, 0]
     gain = rng.uniform(0.75, 1.25, size=(len(crops), 1, 1, 1)).astype(np.float32)
     bias = rng.uniform(-25, 25, size=(len(crops), 1, 1, 1)).astype(np.float32)
-    return np.clip(crops * gain + bias, 0, 255), geometry
+    return np.clip(crops * gain + bias, 0, 255), geometry, target
+
+
+#: The box correction's loss weighs a centre offset (in crop sides) by the crop's context, so that
+#: it counts in the box's own sides, as the log width and height do.
+CORRECTION_SCALE = (CONTEXT, CONTEXT, 1.0, 1.0)
 
 
 def losses(
-    logits: torch.Tensor,
-    quality: torch.Tensor,
+    outputs: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
+    geometry: torch.Tensor,
     labels: torch.Tensor,
-    iou: torch.Tensor,
+    target: torch.Tensor,
     class_weights: torch.Tensor,
-    quality_weight: float,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Weighted cross-entropy over the classes; binary cross-entropy of the quality logit against the IoU."""
+    weights: tuple[float, float],
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Weighted cross-entropy over the classes; L1 of the corrected box against the object's
+    annotated box on object crops; binary cross-entropy of the quality logit against the IoU of
+    the corrected box (held fixed) with the annotated one (0 on background)."""
+    logits, quality, correction = outputs
+    quality_weight, box_weight = weights
     ce = nn.functional.cross_entropy(logits, labels, weight=class_weights)
-    bce = nn.functional.binary_cross_entropy_with_logits(quality.reshape(-1), iou)
-    return ce, quality_weight * bce
+    objects = labels > 0
+    scale = torch.tensor(CORRECTION_SCALE, dtype=geometry.dtype)
+    corrected = geometry + correction
+    if objects.any():
+        box = box_weight * ((corrected[objects] - target[objects]).abs() * scale).sum(dim=1).mean()
+    else:
+        box = correction.sum() * 0.0
+    iou = np.zeros(len(labels), dtype=np.float32)
+    chosen = objects.numpy()
+    if chosen.any():
+        iou[chosen] = encoded_iou(corrected.detach().numpy()[chosen], target.numpy()[chosen])
+    bce = nn.functional.binary_cross_entropy_with_logits(quality.reshape(-1), torch.from_numpy(iou))
+    return ce, quality_weight * bce, box
 
 
 def model_signature(config: dict[str, Any]) -> dict[str, Any]:
     """What a checkpoint must share with the config to be resumed or exported under it."""
-    return {"model": config["model"], "crop_size": CROP_SIZE, "context": CONTEXT, "min_side": MIN_SIDE}
+    model = dict(config["model"])
+    if not model.get("box_correction"):
+        model.pop("box_correction", None)  # a model without it is the one from before the option
+    return {"model": model, "crop_size": CROP_SIZE, "context": CONTEXT, "min_side": MIN_SIDE}
 
 
 def load_resume(path: Path, config: dict[str, Any]) -> dict[str, Any]:
@@ -175,34 +224,34 @@ def _save(path: Path, payload: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
-def predict(model: CropClassifier, crops: CropSet, batch: int = 512) -> tuple[np.ndarray, np.ndarray]:
-    """Class logits ``(N, 4)`` and quality logits ``(N,)`` of a crop set, in eval mode."""
+def predict(model: CropClassifier, crops: CropSet, batch: int = 512) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Class logits ``(N, 4)``, quality logits ``(N,)`` and corrected boxes ``(N, 4)`` (in the
+    terms of :func:`~gldt_core.detect.second_stage.encode_boxes`) of a crop set, in eval mode."""
     model.eval()
-    logits, quality = [], []
+    logits, quality, corrected = [], [], []
     with torch.no_grad():
         for start in range(0, len(crops), batch):
-            out = model(
-                torch.from_numpy(crops.crops[start : start + batch].astype(np.float32)),
-                torch.from_numpy(crops.geometry[start : start + batch].astype(np.float32)),
-            )
+            geometry = torch.from_numpy(crops.geometry[start : start + batch].astype(np.float32))
+            out = model.outputs(torch.from_numpy(crops.crops[start : start + batch].astype(np.float32)), geometry)
             logits.append(out[0].numpy())
             quality.append(out[1].numpy().reshape(-1))
-    return np.concatenate(logits), np.concatenate(quality)
+            corrected.append((geometry + out[2]).numpy())
+    return np.concatenate(logits), np.concatenate(quality), np.concatenate(corrected)
 
 
 def calibrate(model: CropClassifier, crops: CropSet) -> dict[str, Any]:
     """Fit the logistic calibration on the detector candidates of the calibration clips.
 
-    A candidate is positive when it sits on a drone and its box overlaps the drone's annotated
-    box at IoU >= 0.5, the event a drone AP50 counts. Returns the card entry with the
+    A candidate is positive when it sits on a drone and its corrected box overlaps the drone's
+    annotated box at IoU >= 0.5, the event a drone AP50 counts. Returns the card entry with the
     expected calibration error before (the raw evidence) and after.
     """
     from sklearn.linear_model import LogisticRegression
 
     candidates = np.isin(crops.sources, [SOURCES.index("global"), SOURCES.index("local")])
     subset = crops.subset(candidates)
-    logits, quality = predict(model, subset)
-    positive = (subset.labels == 1) & (subset.quality >= 0.5)
+    logits, quality, corrected = predict(model, subset)
+    positive = (subset.labels == 1) & (encoded_iou(corrected, subset.target) >= 0.5)
     if positive.all() or not positive.any():
         raise ValueError(
             f"cannot calibrate: {int(positive.sum())} of {len(positive)} detector candidates of the calibration "
@@ -239,8 +288,9 @@ def expected_calibration_error(probability: np.ndarray, outcome: np.ndarray, bin
 
 
 def evaluate(model: CropClassifier, crops: CropSet) -> dict[str, float]:
-    """Accuracy, recall per class and the box-quality error on drones, for the card and the log."""
-    logits, quality = predict(model, crops)
+    """Accuracy, recall per class, the box-quality error on drones and the drones' boxes against
+    their annotations before and after the correction, for the card and the log."""
+    logits, quality, corrected = predict(model, crops)
     predicted = logits.argmax(axis=1)
     out: dict[str, float] = {"accuracy": float((predicted == crops.labels).mean())}
     for index, name in enumerate(CLASS_NAMES):
@@ -250,7 +300,12 @@ def evaluate(model: CropClassifier, crops: CropSet) -> dict[str, float]:
     drones = crops.labels == 1
     if drones.any():
         predicted_iou = 1.0 / (1.0 + np.exp(-quality[drones]))
-        out["drone_quality_mean_abs_error"] = float(np.mean(np.abs(predicted_iou - crops.quality[drones])))
+        after = encoded_iou(corrected[drones], crops.target[drones])
+        out["drone_quality_mean_abs_error"] = float(np.mean(np.abs(predicted_iou - after)))
+        out["drone_iou_mean_before"] = float(crops.quality[drones].mean())
+        out["drone_iou_mean_after"] = float(after.mean())
+        out["drone_at_iou_0.5_before"] = float((crops.quality[drones] >= 0.5).mean())
+        out["drone_at_iou_0.5_after"] = float((after >= 0.5).mean())
     return out
 
 
@@ -363,30 +418,31 @@ def fit_classifier(
         rng = np.random.default_rng([seed, epoch])  # the data order and augmentation of this epoch
         order = rng.permutation(len(fit_set))
         model.train()
-        totals = np.zeros(2)
+        totals = np.zeros(3)
         for step in range(steps_per_epoch):
             idx = np.sort(order[step * batch : (step + 1) * batch])
-            x, geometry = augment(fit_set.crops[idx], fit_set.geometry[idx], rng)
-            logits, quality = model(torch.from_numpy(x), torch.from_numpy(geometry))
-            ce, box = losses(
-                logits,
-                quality,
+            x, geometry, target = augment(fit_set.crops[idx], fit_set.geometry[idx], fit_set.target[idx], rng)
+            geometry_t = torch.from_numpy(geometry)
+            ce, quality, box = losses(
+                model.outputs(torch.from_numpy(x), geometry_t),
+                geometry_t,
                 torch.from_numpy(fit_set.labels[idx]),
-                torch.from_numpy(fit_set.quality[idx].astype(np.float32)),
+                torch.from_numpy(target),
                 class_weights,
-                float(tcfg["quality_weight"]),
+                (float(tcfg["quality_weight"]), float(tcfg["box_weight"])),
             )
             optimizer.zero_grad()
-            (ce + box).backward()
+            (ce + quality + box).backward()
             optimizer.step()
             scheduler.step()
-            totals += [ce.item(), box.item()]
+            totals += [ce.item(), quality.item(), box.item()]
         epoch += 1
         wall_total += time.perf_counter() - started
         row = {
             "epoch": epoch,
             "ce": totals[0] / steps_per_epoch,
             "quality": totals[1] / steps_per_epoch,
+            "box": totals[2] / steps_per_epoch,
             "wall_s": round(wall_total, 1),
         }
         row.update({f"calibration_{k}": round(v, 4) for k, v in evaluate(model, calibration_set).items()})
@@ -425,14 +481,15 @@ def export_second_stage(model: CropClassifier, path: Path, card: dict[str, Any])
     model = model.eval()
     tmp = path.with_name(path.name + ".tmp")
     example = (torch.rand(3, 6, CROP_SIZE, CROP_SIZE) * 255, torch.randn(3, 4) * 0.3)
+    outputs = ["class_logits", "quality_logit"] + ([] if model.correction is None else ["box_correction"])
     with torch.no_grad():
         torch.onnx.export(
             model,
             example,
             str(tmp),
             input_names=["crops", "geometry"],
-            output_names=["class_logits", "quality_logit"],
-            dynamic_axes={n: {0: "n"} for n in ("crops", "geometry", "class_logits", "quality_logit")},
+            output_names=outputs,
+            dynamic_axes={n: {0: "n"} for n in ("crops", "geometry", *outputs)},
             opset_version=17,
             dynamo=False,
         )
