@@ -13,10 +13,12 @@ relative to the crop (:func:`encode_boxes`) go through a small CNN that answers
 * the quality of the box: its predicted IoU with the object's annotated box (of the corrected
   box where the model corrects boxes).
 
-The detectors learn small, tight boxes from the synthetic scenes in their training mix, while the
-Halmstad annotators box a drone with a margin; the correction learns that margin from the
-annotations of the training clips, the way a two-stage detector's second stage refines its
-proposals. The drone probability, the predicted IoU and the detector's score multiply into one
+The correction (opt-in, a model trained with ``model.box_correction``) learns the margin the
+Halmstad annotators leave around a drone from the training clips' annotations, the way a
+two-stage detector's second stage refines its proposals. That margin differs from clip to clip,
+so the shipped model has no correction and keeps the detector's boxes.
+
+The drone probability, the predicted IoU and the detector's score multiply into one
 :func:`evidence`, and a monotone logistic calibration fitted on calibration clips the classifier
 never trained on (the model card's ``calibration``) turns it into the probability that the
 candidate is a drone boxed at IoU 0.5, so that one threshold means the same in the detector,

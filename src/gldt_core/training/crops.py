@@ -8,13 +8,13 @@ what it will be shown at run time and what it must tell apart:
   hard negatives: the birds, airplanes and clouds it takes for drones);
 * ``local``: the local detector's candidates on tiles covering the frame;
 * ``jitter``: every annotated object (drone, bird, airplane) boxed loosely and off-centre, the
-  way the detectors box them, so the box refinement learns the annotations' boxes;
+  way the detectors box them, so the box correction learns the annotations' boxes;
 * ``random``: empty sky and ground away from every object.
 
 Each candidate is labelled from the annotations: the class of the object it sits on (IoU >= 0.2,
 or centre inside it at a comparable size), background when it touches none (IoU < 0.05 and
 centre outside every box), and left out in between. Its box-quality target is its IoU with that
-object's annotated box (0 on background), and its refinement target is that annotated box in
+object's annotated box (0 on background), and its box-correction target is that annotated box in
 the same crop-relative terms as the candidate's own (:func:`encode_boxes`; zeros on background).
 Clips and scenes are cut one at a time into ``CACHE/<key>/<name>.npz``, so a build that stops resumes.
 Synthetic scenes (:class:`SceneCrops`) add drones of other looks and sizes than the Halmstad

@@ -115,10 +115,12 @@ class CropClassifier(nn.Module):
         heads = (self.classes(x[:, :-4]), self.quality(x))
         return heads if self.correction is None else (*heads, self.correction(x))
 
-    def outputs(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Class logits, quality logit and box correction (zeros without the correction head)."""
+    def outputs(
+        self, crops: torch.Tensor, geometry: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Class logits, quality logit and box correction (None without the correction head)."""
         out = self(crops, geometry)
-        return out[0], out[1], out[2] if len(out) == 3 else torch.zeros_like(geometry)
+        return out[0], out[1], out[2] if len(out) == 3 else None
 
 
 def split_for_calibration(clips: list[str], period: int) -> tuple[list[str], list[str]]:
@@ -169,31 +171,33 @@ CORRECTION_SCALE = (CONTEXT, CONTEXT, 1.0, 1.0)
 
 
 def losses(
-    outputs: tuple[torch.Tensor, torch.Tensor, torch.Tensor],
-    geometry: torch.Tensor,
-    labels: torch.Tensor,
-    target: torch.Tensor,
+    outputs: tuple[torch.Tensor, torch.Tensor, torch.Tensor | None],
+    batch: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
     class_weights: torch.Tensor,
     weights: tuple[float, float],
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Weighted cross-entropy over the classes; L1 of the corrected box against the object's
-    annotated box on object crops; binary cross-entropy of the quality logit against the IoU of
-    the corrected box (held fixed) with the annotated one (0 on background)."""
+    """Weighted cross-entropy over the classes; binary cross-entropy of the quality logit against
+    the box's IoU with its object's annotated box (0 on background); with a correction head, L1 of
+    the corrected box against the annotated one on object crops, and the quality target is then
+    the corrected box's IoU (held fixed). ``batch``: labels, geometry, annotated boxes (both
+    :func:`~gldt_core.detect.second_stage.encode_boxes`), IoU of the uncorrected boxes."""
     logits, quality, correction = outputs
+    labels, geometry, target, iou = batch
     quality_weight, box_weight = weights
     ce = nn.functional.cross_entropy(logits, labels, weight=class_weights)
+    box = torch.zeros(())
     objects = labels > 0
-    scale = torch.tensor(CORRECTION_SCALE, dtype=geometry.dtype)
-    corrected = geometry + correction
-    if objects.any():
-        box = box_weight * ((corrected[objects] - target[objects]).abs() * scale).sum(dim=1).mean()
-    else:
+    if correction is not None:
+        scale = torch.tensor(CORRECTION_SCALE, dtype=geometry.dtype)
+        corrected = geometry + correction
         box = correction.sum() * 0.0
-    iou = np.zeros(len(labels), dtype=np.float32)
-    chosen = objects.numpy()
-    if chosen.any():
-        iou[chosen] = encoded_iou(corrected.detach().numpy()[chosen], target.numpy()[chosen])
-    bce = nn.functional.binary_cross_entropy_with_logits(quality.reshape(-1), torch.from_numpy(iou))
+        if objects.any():
+            box = box_weight * ((corrected[objects] - target[objects]).abs() * scale).sum(dim=1).mean()
+        chosen = objects.numpy()
+        refined = np.zeros(len(labels), dtype=np.float32)
+        refined[chosen] = encoded_iou(corrected.detach().numpy()[chosen], target.numpy()[chosen])
+        iou = torch.from_numpy(refined)
+    bce = nn.functional.binary_cross_entropy_with_logits(quality.reshape(-1), iou)
     return ce, quality_weight * bce, box
 
 
@@ -235,8 +239,16 @@ def predict(model: CropClassifier, crops: CropSet, batch: int = 512) -> tuple[np
             out = model.outputs(torch.from_numpy(crops.crops[start : start + batch].astype(np.float32)), geometry)
             logits.append(out[0].numpy())
             quality.append(out[1].numpy().reshape(-1))
-            corrected.append((geometry + out[2]).numpy())
+            corrected.append((geometry if out[2] is None else geometry + out[2]).numpy())
     return np.concatenate(logits), np.concatenate(quality), np.concatenate(corrected)
+
+
+def box_iou_after(model: CropClassifier, crops: CropSet, corrected: np.ndarray) -> np.ndarray:
+    """``(N,)`` each crop's box IoU with its object's annotated box after the model's correction
+    (the stored IoU where the model corrects nothing; 0 on background)."""
+    if model.correction is None:
+        return np.asarray(crops.quality, dtype=np.float64)
+    return np.where(crops.labels > 0, encoded_iou(corrected, crops.target), 0.0)
 
 
 def calibrate(model: CropClassifier, crops: CropSet) -> dict[str, Any]:
@@ -251,7 +263,7 @@ def calibrate(model: CropClassifier, crops: CropSet) -> dict[str, Any]:
     candidates = np.isin(crops.sources, [SOURCES.index("global"), SOURCES.index("local")])
     subset = crops.subset(candidates)
     logits, quality, corrected = predict(model, subset)
-    positive = (subset.labels == 1) & (encoded_iou(corrected, subset.target) >= 0.5)
+    positive = (subset.labels == 1) & (box_iou_after(model, subset, corrected) >= 0.5)
     if positive.all() or not positive.any():
         raise ValueError(
             f"cannot calibrate: {int(positive.sum())} of {len(positive)} detector candidates of the calibration "
@@ -300,7 +312,7 @@ def evaluate(model: CropClassifier, crops: CropSet) -> dict[str, float]:
     drones = crops.labels == 1
     if drones.any():
         predicted_iou = 1.0 / (1.0 + np.exp(-quality[drones]))
-        after = encoded_iou(corrected[drones], crops.target[drones])
+        after = box_iou_after(model, crops, corrected)[drones]
         out["drone_quality_mean_abs_error"] = float(np.mean(np.abs(predicted_iou - after)))
         out["drone_iou_mean_before"] = float(crops.quality[drones].mean())
         out["drone_iou_mean_after"] = float(after.mean())
@@ -425,9 +437,12 @@ def fit_classifier(
             geometry_t = torch.from_numpy(geometry)
             ce, quality, box = losses(
                 model.outputs(torch.from_numpy(x), geometry_t),
-                geometry_t,
-                torch.from_numpy(fit_set.labels[idx]),
-                torch.from_numpy(target),
+                (
+                    torch.from_numpy(fit_set.labels[idx]),
+                    geometry_t,
+                    torch.from_numpy(target),
+                    torch.from_numpy(fit_set.quality[idx].astype(np.float32)),
+                ),
                 class_weights,
                 (float(tcfg["quality_weight"]), float(tcfg["box_weight"])),
             )
