@@ -356,12 +356,6 @@ class JPTrack(MultiStageTracker):
         if not long_lost and c.tau_t >= 0.0:
             return rest_high, rest_low  # every score would be 0: nothing can pass the gate
         centres = midpoint(dets[cand, :2], dets[cand, 2:4])
-        just_lost = [tr for tr in lost if t - tr.last_update_t < c.pmr_min_lost_s - 1e-9]
-        if just_lost and c.pmr_defer_to_just_lost:
-            claimed = self._near_prediction(just_lost, centres, t).any(axis=0)
-            cand, centres = cand[~claimed], centres[~claimed]
-            if len(cand) == 0:
-                return rest_high, rest_low
         rows = []
         if long_lost:
             worth = self._worth_modelling([lost[i] for i in long_lost], centres, t)
@@ -376,9 +370,13 @@ class JPTrack(MultiStageTracker):
             if c.tau_t >= 0.0 and not (final > c.tau_t).any():
                 return rest_high, rest_low  # no candidate passes the gate (most frames)
             score[rows] = final
+        allowed = score > c.tau_t
+        just_lost = [tr for tr in lost if t - tr.last_update_t < c.pmr_min_lost_s - 1e-9]
+        if just_lost and c.pmr_defer_to_just_lost:  # only on the rare frames where a pair passes
+            allowed[:, self._near_prediction(just_lost, centres, t).any(axis=0)] = False
         # As a cost 1 - P_final with limit 1 - tau_t: a pair is worth matching exactly when it
         # passes the gate, and a conflict goes to the largest total margin sum(P_final - tau_t).
-        pairs = assign(1.0 - score, score > c.tau_t, 1.0 - c.tau_t)
+        pairs = assign(1.0 - score, allowed, 1.0 - c.tau_t)
         if not pairs:
             return rest_high, rest_low
         recovered = [lost[r] for r, _ in pairs]

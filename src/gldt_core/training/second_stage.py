@@ -111,9 +111,10 @@ class CropClassifier(nn.Module):
             nn.init.zeros_(last.bias)
 
     def forward(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        x = torch.cat([self.neck(self.features(crops / 127.5 - 1.0)), geometry], dim=1)
-        heads = (self.classes(x[:, :-4]), self.quality(x))
-        return heads if self.correction is None else (*heads, self.correction(x))
+        x = self.neck(self.features(crops / 127.5 - 1.0))
+        with_box = torch.cat([x, geometry], dim=1)
+        heads = (self.classes(x), self.quality(with_box))
+        return heads if self.correction is None else (*heads, self.correction(with_box))
 
     def outputs(
         self, crops: torch.Tensor, geometry: torch.Tensor
@@ -190,7 +191,6 @@ def losses(
     if correction is not None:
         scale = torch.tensor(CORRECTION_SCALE, dtype=geometry.dtype)
         corrected = geometry + correction
-        box = correction.sum() * 0.0
         if objects.any():
             box = box_weight * ((corrected[objects] - target[objects]).abs() * scale).sum(dim=1).mean()
         chosen = objects.numpy()
