@@ -260,3 +260,37 @@ def test_a_synthetic_scene_is_cut_at_its_scale_with_its_drones_labelled(tmp_path
     assert (
         tmp_path / "cache" / f"crops_{spec.key(DEFAULT_GLOBAL_MODEL, DEFAULT_LOCAL_MODEL)}" / f"{item.name}.npz"
     ).is_file()
+
+
+@pytest.mark.parametrize("context", [2.0, 3.0])
+def test_the_crops_cover_the_configured_context_around_each_box(context: float) -> None:
+    from gldt_core.detect.global_detector import GlobalDetector
+    from gldt_core.training.crops import CropSpec, cut_frames
+
+    class NoCandidates(GlobalDetector):
+        def __init__(self) -> None:  # no model: the jittered annotations alone are cut
+            pass
+
+        def detect(self, previous: np.ndarray | None, frame: np.ndarray) -> np.ndarray:
+            return np.zeros((0, 9))
+
+    rng = np.random.default_rng(0)
+    frame = rng.integers(0, 255, size=(360, 640, 3), dtype=np.uint8)
+    boxes = np.array([[100.0, 100.0, 160.0, 150.0], [400.0, 200.0, 460.0, 260.0]])
+    spec = CropSpec(local_candidates=0, random_boxes=0, jitter_copies=4, context=context)
+    cut = cut_frames([(frame, frame, boxes, np.array([1, 2]))], "V_DRONE_001", spec, NoCandidates(), None)
+    assert (cut["labels"] > 0).all() and len(cut["labels"]) >= 4
+    longer = np.exp(cut["geometry"][:, 2:].max(axis=1))  # the box's longer side over the crop's
+    np.testing.assert_allclose(longer, 1 / context, rtol=1e-5)
+    with pytest.raises(ValueError, match=r"data\.crops\.context must be > 0 .*got 0"):
+        CropSpec(context=0)
+
+
+def test_another_context_cuts_crops_into_a_cache_of_their_own(tmp_path: Path) -> None:
+    from gldt_core.training.crops import CropSpec
+
+    model = tmp_path / "m.onnx"
+    model.write_bytes(b"model")
+    assert CropSpec().key(model, model) != CropSpec(context=2.0).key(model, model)
+    config = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_context2.yaml")
+    assert config["data"]["crops"]["context"] == 2.0

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from gldt_core.detect.second_stage import crop_windows, cut_crops, encode_boxes
+from gldt_core.detect.second_stage import CONTEXT, crop_windows, cut_crops, encode_boxes
 from gldt_core.eval.detection_metrics import box_iou
 from gldt_core.sim.spec import SceneSpec
 
@@ -53,9 +53,17 @@ class CropSpec:
     candidate_score: float = 0.01
     seed: int = 0
     version: int = 3  # what a crop file holds: 2 = box geometry and box quality, 3 = and the annotated box
+    context: float = CONTEXT  # a crop covers this many times the candidate's longer side
+
+    def __post_init__(self) -> None:
+        if not self.context > 0:
+            raise ValueError(f"data.crops.context must be > 0 (the crop's side over the box's), got {self.context!r}")
 
     def key(self, global_model: Path, local_model: Path) -> str:
-        digest = hashlib.sha1(json.dumps(asdict(self), sort_keys=True).encode())
+        fields = asdict(self)
+        if fields["context"] == CONTEXT:
+            del fields["context"]  # the crops cut before the option was added keep their key
+        digest = hashlib.sha1(json.dumps(fields, sort_keys=True).encode())
         for model in (global_model, local_model):
             digest.update(hashlib.sha1(Path(model).read_bytes()).digest())
         return digest.hexdigest()[:12]
@@ -197,7 +205,7 @@ def cut_frames(
         keep = labels >= 0
         if not keep.any():
             continue
-        windows = crop_windows(all_boxes[keep])
+        windows = crop_windows(all_boxes[keep], spec.context)
         parts["crops"].append(cut_crops(prev, frame, windows))
         parts["labels"].append(labels[keep])
         parts["geometry"].append(encode_boxes(all_boxes[keep], windows))

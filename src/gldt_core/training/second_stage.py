@@ -166,9 +166,9 @@ def augment(
     return np.clip(crops * gain + bias, 0, 255), geometry, target
 
 
-#: The box correction's loss weighs a centre offset (in crop sides) by the crop's context, so that
-#: it counts in the box's own sides, as the log width and height do.
-CORRECTION_SCALE = (CONTEXT, CONTEXT, 1.0, 1.0)
+def crop_context(config: dict[str, Any]) -> float:
+    """How many times a candidate's longer side its crop covers (``data.crops.context``)."""
+    return float(config["data"]["crops"]["context"])
 
 
 def losses(
@@ -176,12 +176,15 @@ def losses(
     batch: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
     class_weights: torch.Tensor,
     weights: tuple[float, float],
+    context: float = CONTEXT,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Weighted cross-entropy over the classes; binary cross-entropy of the quality logit against
     the box's IoU with its object's annotated box (0 on background); with a correction head, L1 of
     the corrected box against the annotated one on object crops, and the quality target is then
     the corrected box's IoU (held fixed). ``batch``: labels, geometry, annotated boxes (both
-    :func:`~gldt_core.detect.second_stage.encode_boxes`), IoU of the uncorrected boxes."""
+    :func:`~gldt_core.detect.second_stage.encode_boxes`), IoU of the uncorrected boxes. The L1
+    weighs a centre offset (in crop sides) by the crops' ``context``, so that it counts in the box's
+    own sides, as the log width and height do."""
     logits, quality, correction = outputs
     labels, geometry, target, iou = batch
     quality_weight, box_weight = weights
@@ -189,7 +192,7 @@ def losses(
     box = torch.zeros(())
     objects = labels > 0
     if correction is not None:
-        scale = torch.tensor(CORRECTION_SCALE, dtype=geometry.dtype)
+        scale = torch.tensor((context, context, 1.0, 1.0), dtype=geometry.dtype)
         corrected = geometry + correction
         if objects.any():
             box = box_weight * ((corrected[objects] - target[objects]).abs() * scale).sum(dim=1).mean()
@@ -206,7 +209,7 @@ def model_signature(config: dict[str, Any]) -> dict[str, Any]:
     model = dict(config["model"])
     if not model.get("box_correction"):
         model.pop("box_correction", None)  # a model without it is the one from before the option
-    return {"model": model, "crop_size": CROP_SIZE, "context": CONTEXT, "min_side": MIN_SIDE}
+    return {"model": model, "crop_size": CROP_SIZE, "context": crop_context(config), "min_side": MIN_SIDE}
 
 
 def load_resume(path: Path, config: dict[str, Any]) -> dict[str, Any]:
@@ -359,7 +362,7 @@ def train_second_stage(
         "kind": "second_stage",
         "classes": list(CLASS_NAMES),
         "crop_size": CROP_SIZE,
-        "context": CONTEXT,
+        "context": spec.context,
         "min_side": MIN_SIDE,
         "calibration": calibrate(model, calibration_set),
         "calibration_clip_figures": evaluate(model, calibration_set),
@@ -445,6 +448,7 @@ def fit_classifier(
                 ),
                 class_weights,
                 (float(tcfg["quality_weight"]), float(tcfg["box_weight"])),
+                crop_context(config),
             )
             optimizer.zero_grad()
             (ce + quality + box).backward()
