@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from gldt_core.detect.fusion import MATCH_IOU, fuse_detections, greedy_pairs
+from gldt_core.detect.session import DetectorConfigError
 
 
 def rows(*boxes: tuple[float, ...]) -> np.ndarray:
@@ -177,3 +178,37 @@ def test_the_global_model_opens_before_the_tile_detector_is_built(tmp_path: obje
     with pytest.raises(TypeError, match="not a LocalDetector"):
         GlobalDetector(tile_detector=tiles, num_threads=1)  # type: ignore[arg-type]
     assert calls == [1]
+
+
+def test_the_systems_ld_detector_shares_the_tile_detectors_models_and_detects_at_its_own_threshold() -> None:
+    """With tile fusion the offline system opens the local model and its second stage once: the LD
+    frames' detector is the tile detector at the LD threshold, and finds what a detector opened on
+    its own at that threshold finds."""
+    from gldt_core.detect import LocalDetector
+    from gldt_core.system.config import load_config
+    from gldt_core.system.gldt_system import build_detectors
+
+    config = load_config(None)
+    assert config.detector.tile_fusion and config.scheduler.local_enabled
+    global_detector, local_detector = build_detectors(config)
+    tiles = global_detector.tile_detector  # type: ignore[attr-defined]
+    assert isinstance(local_detector, LocalDetector) and isinstance(tiles, LocalDetector)
+    assert local_detector.session is tiles.session
+    assert local_detector.second_stage is not None and tiles.second_stage is not None
+    assert local_detector.second_stage.session is tiles.second_stage.session
+    threshold = config.detector.score_threshold
+    assert threshold is not None
+    assert local_detector.score_threshold == threshold and tiles.score_threshold == threshold / 2
+    assert tiles.second_stage.score_threshold == threshold / 2, "the twin's threshold is its own"
+    alone = LocalDetector(classes=config.detector.classes, score_threshold=threshold)
+    rois = np.array([[150, 100, 450, 400], [0, 0, 300, 300]])
+    found = 0
+    for previous, current in real_pairs(16):
+        mine = local_detector.detect_rois(current, rois, previous)
+        np.testing.assert_allclose(mine, alone.detect_rois(current, rois, previous), atol=1e-5)
+        low = tiles.detect_rois(current, rois, previous)
+        assert len(low) >= len(mine) and (low[:, 4] >= threshold / 2).all()
+        found += len(mine)
+    assert found >= 1, "the sample bag's drone is found in some of these ROIs"
+    with pytest.raises(DetectorConfigError, match=r"score_threshold must be in \[0, 1\], got 1.5"):
+        tiles.at_score_threshold(1.5)

@@ -18,6 +18,7 @@ they run.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,7 @@ from gldt_core.detect.second_stage import (
     PROBABILITY_COLUMNS,
     SecondStageChoice,
     attach_second_stage,
+    candidate_threshold,
     default_score_threshold,
     one_hot_probabilities,
 )
@@ -92,6 +94,21 @@ class LocalDetector(OnnxDetector):
             score_threshold=self.score_threshold,
             classes=self.classes,
         )
+
+    def at_score_threshold(self, score_threshold: float) -> LocalDetector:
+        """This detector at another score threshold, sharing its opened model and second stage
+        (their onnxruntime sessions hold no state between calls): the LD frames' detector and the
+        GD frame's tile detector (:func:`~gldt_core.detect.fusion.build_tile_detector`) open each
+        file once."""
+        if not isinstance(score_threshold, (int, float)) or not 0.0 <= score_threshold <= 1.0:
+            raise DetectorConfigError(f"score_threshold must be in [0, 1], got {score_threshold}")
+        twin = copy.copy(self)
+        twin.score_threshold = float(score_threshold)
+        if self.second_stage is not None:
+            twin.second_stage = copy.copy(self.second_stage)
+            twin.second_stage.score_threshold = twin.score_threshold
+        twin.decode_threshold = candidate_threshold(twin.second_stage, twin.score_threshold)
+        return twin
 
     def _input_geometry(self, model_input: Any) -> tuple[int, int | None]:
         """``(S, multiple)``: the square input side the ROIs are scaled for, and, for a model whose

@@ -370,13 +370,17 @@ def attach_second_stage(
     classes: Sequence[int] | None,
 ) -> tuple[SecondStage | None, float]:
     """A detector's second stage (:func:`load_second_stage`) and the score its model decodes
-    candidates down to: :attr:`SecondStage.CANDIDATE_SCORE` with a second stage (never above the
-    threshold asked for), else the threshold itself."""
+    candidates down to (:func:`candidate_threshold`)."""
     stage = load_second_stage(
         choice, detector_model, providers=providers, score_threshold=score_threshold, classes=classes
     )
-    decode = min(SecondStage.CANDIDATE_SCORE, score_threshold) if stage is not None else score_threshold
-    return stage, decode
+    return stage, candidate_threshold(stage, score_threshold)
+
+
+def candidate_threshold(stage: SecondStage | None, score_threshold: float) -> float:
+    """The score a detector's model decodes candidates down to: :attr:`SecondStage.CANDIDATE_SCORE`
+    where ``stage`` re-scores them (never above ``score_threshold``), else the threshold itself."""
+    return min(SecondStage.CANDIDATE_SCORE, score_threshold) if stage is not None else score_threshold
 
 
 def default_score_threshold(with_second_stage: bool) -> float:

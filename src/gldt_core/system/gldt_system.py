@@ -174,7 +174,16 @@ def build_detectors(config: SystemConfig) -> tuple[GlobalDetectorLike, LocalDete
     )
     local_detector = None
     if config.scheduler.local_enabled:
-        local_detector = detect.LocalDetector(model_path=settings.local_model, **kwargs)
+        tiles = global_detector.tile_detector
+        if tiles is not None:  # the same model and second stage at the LD frames' threshold: opened once
+            from gldt_core.detect.second_stage import default_score_threshold
+
+            threshold = settings.score_threshold
+            if threshold is None:
+                threshold = default_score_threshold(settings.second_stage is not None)
+            local_detector = tiles.at_score_threshold(threshold)
+        else:
+            local_detector = detect.LocalDetector(model_path=settings.local_model, **kwargs)
     return global_detector, local_detector
 
 
