@@ -294,3 +294,42 @@ def test_another_context_cuts_crops_into_a_cache_of_their_own(tmp_path: Path) ->
     assert CropSpec().key(model, model) != CropSpec(context=2.0).key(model, model)
     config = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_context2.yaml")
     assert config["data"]["crops"]["context"] == 2.0
+
+
+def test_the_focal_class_loss_is_weighted_cross_entropy_at_gamma_0_and_spares_easy_crops_above() -> None:
+    from gldt_core.training.second_stage import class_loss
+
+    torch.manual_seed(0)
+    logits = torch.randn(32, 4) * 3
+    labels = torch.randint(0, 4, (32,))
+    weights = torch.tensor([0.5, 1.0, 2.0, 3.0])
+    plain = torch.nn.functional.cross_entropy(logits, labels, weight=weights)
+    assert torch.equal(class_loss(logits, labels, weights, 0.0), plain)
+    # Written out per crop: w_y * (1 - p_y)^gamma * -log p_y, over the sum of the w_y.
+    p = torch.softmax(logits, dim=1)[torch.arange(32), labels]
+    w = weights[labels]
+    expected = (w * (1 - p) ** 2 * -torch.log(p)).sum() / w.sum()
+    torch.testing.assert_close(class_loss(logits, labels, weights, 2.0), expected)
+    # A crop classified right with p = 0.99 loses 10^4 of its term; a confident mistake keeps nearly all of it.
+    easy = torch.tensor([[0.0, 0.0, 0.0, 0.0]])
+    easy[0, 1] = float(np.log(0.99 / 0.01 * 3))
+    one = torch.tensor([1])
+    ratio = class_loss(easy, one, weights, 2.0) / class_loss(easy, one, weights, 0.0)
+    assert ratio.item() == pytest.approx(1e-4, rel=1e-3)
+    wrong = torch.tensor([[0.0, -5.0, 0.0, 0.0]])
+    assert (class_loss(wrong, one, weights, 2.0) / class_loss(wrong, one, weights, 0.0)).item() > 0.99
+
+
+def test_a_negative_focal_gamma_is_refused_in_one_line(tmp_path: Path) -> None:
+    config = tiny_config()
+    config["train"]["focal_gamma"] = -1
+    with pytest.raises(ValueError, match=r"^train\.focal_gamma must be >= 0, got -1$"):
+        fit_classifier(config, toy_crops(), toy_crops(seed=1), tmp_path)
+    assert not any(tmp_path.iterdir()), "nothing written"
+    torch.set_num_threads(1)
+    config["train"]["focal_gamma"] = 2.0
+    config["train"]["epochs"] = 8
+    fitted = fit_classifier(config, toy_crops(96), toy_crops(32, 1), tmp_path, progress=False)
+    assert fitted is not None and evaluate(fitted[0], toy_crops(64, seed=2))["accuracy"] >= 0.9
+    focal = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_focal.yaml")
+    assert focal["train"]["focal_gamma"] == 2.0

@@ -66,6 +66,8 @@ DEFAULTS: dict[str, Any] = {
         "weight_decay": 0.0005,
         "quality_weight": 1.0,
         "box_weight": 1.0,
+        # > 0: focal loss on the classes (class_loss): the crops already classified right weigh less.
+        "focal_gamma": 0.0,
         "max_wall_s": None,
     },
 }
@@ -171,14 +173,29 @@ def crop_context(config: dict[str, Any]) -> float:
     return float(config["data"]["crops"]["context"])
 
 
+def class_loss(
+    logits: torch.Tensor, labels: torch.Tensor, class_weights: torch.Tensor, focal_gamma: float
+) -> torch.Tensor:
+    """Cross-entropy weighted by class (the weighted mean over the batch, as torch's), each crop's
+    term scaled by ``(1 - p)^focal_gamma`` of its true class's probability ``p`` (focal loss:
+    crops the model already gets right count less, the confident mistakes as much as before);
+    ``focal_gamma`` 0 is plain weighted cross-entropy."""
+    if focal_gamma == 0:
+        return nn.functional.cross_entropy(logits, labels, weight=class_weights)
+    log_p = nn.functional.log_softmax(logits, dim=1).gather(1, labels[:, None]).squeeze(1)
+    weight = class_weights[labels]
+    return (weight * (1 - log_p.exp()).pow(focal_gamma) * -log_p).sum() / weight.sum()
+
+
 def losses(
     outputs: tuple[torch.Tensor, torch.Tensor, torch.Tensor | None],
     batch: tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor],
     class_weights: torch.Tensor,
     weights: tuple[float, float],
     context: float = CONTEXT,
+    focal_gamma: float = 0.0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Weighted cross-entropy over the classes; binary cross-entropy of the quality logit against
+    """Class loss (:func:`class_loss`); binary cross-entropy of the quality logit against
     the box's IoU with its object's annotated box (0 on background); with a correction head, L1 of
     the corrected box against the annotated one on object crops, and the quality target is then
     the corrected box's IoU (held fixed). ``batch``: labels, geometry, annotated boxes (both
@@ -188,7 +205,7 @@ def losses(
     logits, quality, correction = outputs
     labels, geometry, target, iou = batch
     quality_weight, box_weight = weights
-    ce = nn.functional.cross_entropy(logits, labels, weight=class_weights)
+    ce = class_loss(logits, labels, class_weights, focal_gamma)
     box = torch.zeros(())
     objects = labels > 0
     if correction is not None:
@@ -395,6 +412,8 @@ def fit_classifier(
     torch.manual_seed(seed)
     model = CropClassifier(**config["model"])
     tcfg = config["train"]
+    if not float(tcfg["focal_gamma"]) >= 0:
+        raise ValueError(f"train.focal_gamma must be >= 0, got {tcfg['focal_gamma']!r}")
     optimizer = torch.optim.AdamW(model.parameters(), lr=float(tcfg["lr"]), weight_decay=float(tcfg["weight_decay"]))
     batch = int(tcfg["batch_size"])
     steps_per_epoch = math.ceil(len(fit_set) / batch)
@@ -449,6 +468,7 @@ def fit_classifier(
                 class_weights,
                 (float(tcfg["quality_weight"]), float(tcfg["box_weight"])),
                 crop_context(config),
+                float(tcfg["focal_gamma"]),
             )
             optimizer.zero_grad()
             (ce + quality + box).backward()
