@@ -236,3 +236,30 @@ def test_pmr_leaves_a_just_lost_tracks_outlier_to_it_rather_than_to_an_old_lost_
     assert deferred[52] == [] and all(ids == [2] for ids in deferred[21:52] + deferred[53:])
     taken = shown_ids(JPTrackConfig(pmr_defer_to_just_lost=False))
     assert taken[52] == [1] and taken[53:] == deferred[53:]
+
+
+def test_stage_one_leaves_a_tracked_target_its_own_low_scored_detection() -> None:
+    """Target 1 (20 px, moving right) is tracked throughout; target 2, 34 px to its right, is seen
+    10 frames, then missed for 1.2 s (past the first stage's window: only PMR may bring it back),
+    and comes back with a high score on the frame where target 1 is boxed with a low score, on its
+    path. The first stage must not hand target 2's detection to target 1's track (an identity
+    switch on both targets): with the deferral, target 1's track takes its own low-scored box in
+    stage 2 and target 2's detection goes to target 2's lost track."""
+
+    def boxes_by_id(config: JPTrackConfig) -> dict[int, list[float]]:
+        tr = JPTrack(config)
+        out: dict[int, list[float]] = {}
+        for frame in range(50):
+            x = 100 + 1.0 * frame
+            rows = [[x - 10, 190, x + 10, 210, 0.2 if frame == 46 else 0.9]]
+            if frame < 10 or frame >= 46:
+                rows.append([x + 24, 190, x + 44, 210, 0.9])
+            shown = tr.update(np.array(rows), frame / 30)
+            out = {int(row[4]): row[:4].tolist() for row in shown} if frame == 46 else out
+        return out
+
+    deferred = boxes_by_id(JPTrackConfig())
+    assert deferred[1] == pytest.approx([136, 190, 156, 210], abs=3), "target 1's track on target 1"
+    assert deferred[2] == pytest.approx([170, 190, 190, 210], abs=3), "target 2's id back on target 2"
+    taken = boxes_by_id(JPTrackConfig(defer_to_own_low=False))
+    assert taken[1][0] > 150, "without it, target 1's track jumps toward target 2 (its box is filtered)"

@@ -23,6 +23,14 @@ Table I value is a config field with the paper's default. What the paper leaves 
   seen off its path for a frame (jitter, a part of it boxed). PMR leaves such a detection to the
   following frames (``pmr_defer_to_just_lost``) rather than hand it to a track lost long ago:
   otherwise an old identity surfaces on a tracked target for a frame, two identity switches.
+* ByteTrack's first stage offers a tracked track only the high-score detections, so on a frame
+  where its own target is scored low it takes a high-score detection of a neighbour within its
+  gate: a target back from more than ``lost_window_s`` of misses next to a tracked one loses its
+  detection to it, and both identities switch. The first stage therefore gives a tracked track no
+  high-score detection more than a box size off its prediction while a low-score detection lies
+  within half a box size of it (``defer_to_own_low``); stage 2 then matches that one, and the
+  high-score detection goes to PMR. Seen on the `crossing` tuning profile (experiment-log.md,
+  Tracking, 2026-12-07).
 * PMR leaves out the history samples of a track's first ``PMR_SETTLING_HITS`` updates: the
   Kalman velocity starts at 0 and takes a few updates to converge (a constant 5 px/frame target
   reads 0, 1.0 and 2.5 px/frame on its first three), and extrapolated to the loss time those
@@ -135,6 +143,9 @@ class JPTrackConfig:
     # PMR gives no lost track a detection within reach of a track lost under pmr_min_lost_s ago
     # (module docstring).
     pmr_defer_to_just_lost: bool = True
+    # Stage 1 gives a tracked track no high-score detection off its prediction while a low-score
+    # detection lies on it (its own target, scored low this frame; module docstring).
+    defer_to_own_low: bool = True
     pmr_backend: str = "numpy"  # "numpy" (same EM as scikit-learn, faster) or "sklearn"
     # PMR (stage 3) brings a lost track back only with a detection whose size sqrt(w h) is within
     # this factor of the track's own (module docstring); a large value (1e9) turns the gate off.
@@ -253,7 +264,37 @@ class JPTrack(MultiStageTracker):
         motion = TrackMotion(self._motion_rows_for(tracks, t), [tr.hits >= 2 for tr in tracks])
         # Eq. 15's other objects: the pool's tracks at their predicted centres.
         cost, gate = jcma_cost(motion, dets[det_idx, :4], None, None, self._weights)
-        return cost, gate & (cost <= thresh), thresh
+        allowed = gate & (cost <= thresh)
+        if stage == self.STAGE_HIGH and c.defer_to_own_low:
+            self._defer_to_own_low(tracks, motion, dets, det_idx, allowed)
+        return cost, allowed, thresh
+
+    def _defer_to_own_low(
+        self, tracks: Sequence[Track], motion: TrackMotion, dets: np.ndarray, det_idx: np.ndarray, allowed: np.ndarray
+    ) -> None:
+        """Disallow (in ``allowed``, stage 1's mask) the pairs of a tracked (not lost) track and a
+        high-score detection more than a box size off its prediction while a low-score detection
+        lies within half a box size of it (module docstring). Plain Python over the few tracks
+        that have such a pair: this runs on every frame."""
+        scores = dets[:, 4]
+        low_rows = ((scores >= self.config.t_l) & (scores < self.config.t_h)).nonzero()[0]
+        candidates = np.flatnonzero(allowed.any(axis=1))
+        if len(low_rows) == 0 or len(candidates) == 0:
+            return
+        low = [((x1 + x2) / 2, (y1 + y2) / 2) for x1, y1, x2, y2 in dets[low_rows, :4].tolist()]
+        high: list[tuple[float, float]] | None = None
+        for i in candidates.tolist():
+            if tracks[i].state is TrackState.LOST:
+                continue
+            x1, y1, x2, y2 = motion.rows[i][:4]
+            px, py = (x1 + x2) / 2, (y1 + y2) / 2
+            size = max(0.5 * ((x2 - x1) + (y2 - y1)), 1.0)
+            if not any((lx - px) ** 2 + (ly - py) ** 2 < (0.5 * size) ** 2 for lx, ly in low):
+                continue
+            if high is None:
+                high = [((x1 + x2) / 2, (y1 + y2) / 2) for x1, y1, x2, y2 in dets[det_idx, :4].tolist()]
+            off = [j for j, (hx, hy) in enumerate(high) if (hx - px) ** 2 + (hy - py) ** 2 > size**2]
+            allowed[i, off] = False
 
     def _motion_rows_for(self, tracks: Sequence[Track], t: float) -> list[tuple[float, ...]]:
         """:meth:`_motion_row` of each track (the :class:`TrackMotion` rows of the pool). A row is
