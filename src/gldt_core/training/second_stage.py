@@ -173,6 +173,14 @@ def crop_context(config: dict[str, Any]) -> float:
     return float(config["data"]["crops"]["context"])
 
 
+def focal_gamma(config: dict[str, Any]) -> float:
+    """``train.focal_gamma`` (:func:`class_loss`); ValueError in one line when negative."""
+    gamma = float(config["train"]["focal_gamma"])
+    if not gamma >= 0:
+        raise ValueError(f"train.focal_gamma must be >= 0, got {config['train']['focal_gamma']!r}")
+    return gamma
+
+
 def class_loss(
     logits: torch.Tensor, labels: torch.Tensor, class_weights: torch.Tensor, focal_gamma: float
 ) -> torch.Tensor:
@@ -354,6 +362,7 @@ def train_second_stage(
     data = config["data"]
     root = Path(data["halmstad_root"] or halmstad_root())
     spec = CropSpec(**data["crops"])
+    focal_gamma(config)  # checked before the crops are cut
     global_model = Path(data["global_model"] or DEFAULT_GLOBAL_MODEL)
     local_model = Path(data["local_model"] or DEFAULT_LOCAL_MODEL)
     fit_clips, calibration_clips = split_for_calibration(halmstad_split(root)["train"], int(data["calibration_period"]))
@@ -412,8 +421,7 @@ def fit_classifier(
     torch.manual_seed(seed)
     model = CropClassifier(**config["model"])
     tcfg = config["train"]
-    if not float(tcfg["focal_gamma"]) >= 0:
-        raise ValueError(f"train.focal_gamma must be >= 0, got {tcfg['focal_gamma']!r}")
+    gamma = focal_gamma(config)
     optimizer = torch.optim.AdamW(model.parameters(), lr=float(tcfg["lr"]), weight_decay=float(tcfg["weight_decay"]))
     batch = int(tcfg["batch_size"])
     steps_per_epoch = math.ceil(len(fit_set) / batch)
@@ -468,7 +476,7 @@ def fit_classifier(
                 class_weights,
                 (float(tcfg["quality_weight"]), float(tcfg["box_weight"])),
                 crop_context(config),
-                float(tcfg["focal_gamma"]),
+                gamma,
             )
             optimizer.zero_grad()
             (ce + quality + box).backward()
