@@ -292,8 +292,8 @@ def test_another_context_cuts_crops_into_a_cache_of_their_own(tmp_path: Path) ->
     model = tmp_path / "m.onnx"
     model.write_bytes(b"model")
     assert CropSpec().key(model, model) != CropSpec(context=2.0).key(model, model)
-    config = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage.yaml")
-    assert config["data"]["crops"]["context"] == 2.0, "the shipped stage's crops are twice the box"
+    config = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_context2.yaml")
+    assert config["data"]["crops"]["context"] == 2.0
 
 
 def test_the_focal_class_loss_is_weighted_cross_entropy_at_gamma_0_and_spares_easy_crops_above() -> None:
