@@ -46,7 +46,7 @@ from gldt_core.detect.second_stage import (
     default_score_threshold,
     one_hot_probabilities,
 )
-from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input
+from gldt_core.detect.session import DetectorConfigError, OnnxDetector, check_image_input, check_score_threshold
 from gldt_core.detect.shipped import DEFAULT_LOCAL_MODEL
 
 LOCAL_INPUT_EXPECTATION = "one input (N, 3, S, S) float32 RGB ROI crops"
@@ -100,8 +100,7 @@ class LocalDetector(OnnxDetector):
         (their onnxruntime sessions hold no state between calls): the LD frames' detector and the
         GD frame's tile detector (:func:`~gldt_core.detect.fusion.build_tile_detector`) open each
         file once."""
-        if not isinstance(score_threshold, (int, float)) or not 0.0 <= score_threshold <= 1.0:
-            raise DetectorConfigError(f"score_threshold must be in [0, 1], got {score_threshold}")
+        check_score_threshold(score_threshold)
         twin = copy.copy(self)
         twin.score_threshold = float(score_threshold)
         if self.second_stage is not None:

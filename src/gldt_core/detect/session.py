@@ -134,6 +134,12 @@ def class_ids(card: dict[str, Any], num_classes: int) -> np.ndarray:
     return np.asarray(ids[:num_classes], dtype=np.float32)
 
 
+def check_score_threshold(score_threshold: object) -> None:
+    """:class:`DetectorConfigError` in one line unless ``score_threshold`` is a number in [0, 1]."""
+    if not isinstance(score_threshold, (int, float)) or not 0.0 <= score_threshold <= 1.0:
+        raise DetectorConfigError(f"score_threshold must be in [0, 1], got {score_threshold}")
+
+
 class OnnxDetector:
     """What both detectors share: a checked onnxruntime session, its model card, the class ids of
     its outputs and the score/IoU thresholds. Subclasses check their own inputs in between
@@ -161,8 +167,7 @@ class OnnxDetector:
         optimize_graph: bool = True,
     ) -> list[Any]:
         """Open the model; returns its session inputs for the subclass to check."""
-        if not isinstance(score_threshold, (int, float)) or not 0.0 <= score_threshold <= 1.0:
-            raise DetectorConfigError(f"score_threshold must be in [0, 1], got {score_threshold}")
+        check_score_threshold(score_threshold)
         self.model_path = Path(model_path) if model_path is not None else default_path
         self.providers, self.num_threads = tuple(providers), num_threads
         self._session, self.card = open_session(
