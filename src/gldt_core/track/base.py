@@ -180,13 +180,7 @@ class MultiStageTracker:
         active = [tr for tr in self._tracks if tr.state in OUTPUT_STATES]
         dets, rois = self._merge_parts(dets, rois, active)
         rel = self._relative_positions(dets, rois)
-        scores = dets[:, 4]
-        if self._strict_scores:
-            high = (scores > self._t_high).nonzero()[0]
-            low = ((scores > self._t_low) & (scores < self._t_high)).nonzero()[0]
-        else:
-            high = (scores >= self._t_high).nonzero()[0]  # np.flatnonzero without its wrapper
-            low = ((scores >= self._t_low) & (scores < self._t_high)).nonzero()[0]
+        high, low = self._score_split(dets[:, 4])
         lost = [tr for tr in self._tracks if tr.state is TrackState.LOST]
         tentative = [tr for tr in self._tracks if tr.state is TrackState.TENTATIVE]
         updated: set[int] = set()
@@ -279,6 +273,16 @@ class MultiStageTracker:
         return np.array(
             [(*box, float(tr.track_id), tr.score) for box, tr in zip(box_rows(shown), shown)], dtype=np.float64
         )
+
+    def _score_split(self, scores: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Indices of the high-score and of the low-score detections (module docstring)."""
+        if self._strict_scores:
+            high = (scores > self._t_high).nonzero()[0]
+            low = ((scores > self._t_low) & (scores < self._t_high)).nonzero()[0]
+        else:
+            high = (scores >= self._t_high).nonzero()[0]  # np.flatnonzero without its wrapper
+            low = ((scores >= self._t_low) & (scores < self._t_high)).nonzero()[0]
+        return high, low
 
     # --- hooks ------------------------------------------------------------------------------
     def _pair_cost(

@@ -276,8 +276,7 @@ class JPTrack(MultiStageTracker):
         high-score detection more than a box size off its prediction while a low-score detection
         lies within half a box size of it (module docstring). Plain Python over the few tracks
         that have such a pair: this runs on every frame."""
-        scores = dets[:, 4]
-        low_rows = ((scores >= self.config.t_l) & (scores < self.config.t_h)).nonzero()[0]
+        _, low_rows = self._score_split(dets[:, 4])
         candidates = np.flatnonzero(allowed.any(axis=1))
         if len(low_rows) == 0 or len(candidates) == 0:
             return

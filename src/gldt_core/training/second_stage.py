@@ -421,7 +421,7 @@ def fit_classifier(
     torch.manual_seed(seed)
     model = CropClassifier(**config["model"])
     tcfg = config["train"]
-    gamma = focal_gamma(config)
+    gamma, context = focal_gamma(config), crop_context(config)
     optimizer = torch.optim.AdamW(model.parameters(), lr=float(tcfg["lr"]), weight_decay=float(tcfg["weight_decay"]))
     batch = int(tcfg["batch_size"])
     steps_per_epoch = math.ceil(len(fit_set) / batch)
@@ -475,7 +475,7 @@ def fit_classifier(
                 ),
                 class_weights,
                 (float(tcfg["quality_weight"]), float(tcfg["box_weight"])),
-                crop_context(config),
+                context,
                 gamma,
             )
             optimizer.zero_grad()
