@@ -52,3 +52,15 @@ def test_cards_are_not_updated_from_a_run_at_another_input_size(
     code = main(["bench", "detection", "--long-side", "1280", "--update-cards", "--out", str(tmp_path)])
     assert code == 2
     assert "--update-cards" in capsys.readouterr().err
+
+
+def test_false_drones_are_counted_per_clip_and_listed_most_first() -> None:
+    from gldt_core.bench.detection import _counts_by_clip, clips_most_first
+
+    counts = [0, 2, 1, 0, 0, 3, 0, 1, 1]
+    by_clip = _counts_by_clip(counts, {"V_BIRD_004": 3, "V_AIRPLANE_019": 2, "V_AIRPLANE_049": 4})
+    assert by_clip == {"V_BIRD_004": 3, "V_AIRPLANE_019": 0, "V_AIRPLANE_049": 5}
+    assert clips_most_first(by_clip) == "V_AIRPLANE_049 5, V_BIRD_004 3"
+    assert clips_most_first({"V_BIRD_004": 0}) == ""
+    with pytest.raises(ValueError, match="^9 frame counts for 8 frames$"):
+        _counts_by_clip(counts, {"V_BIRD_004": 8})

@@ -333,3 +333,55 @@ def test_a_negative_focal_gamma_is_refused_in_one_line(tmp_path: Path) -> None:
     assert fitted is not None and evaluate(fitted[0], toy_crops(64, seed=2))["accuracy"] >= 0.9
     focal = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_focal.yaml")
     assert focal["train"]["focal_gamma"] == 2.0
+
+
+def test_colour_augmentation_off_draws_as_before_and_on_changes_colour_only() -> None:
+    from gldt_core.training.second_stage import augment
+
+    rng = np.random.default_rng(0)
+    crops = rng.integers(0, 256, size=(16, 6, 8, 8)).astype(np.uint8)
+    geometry, target = rng.normal(size=(16, 4)), rng.normal(size=(16, 4))
+    plain = augment(crops, geometry, target, np.random.default_rng(1))
+    off = augment(crops, geometry, target, np.random.default_rng(1), (0.0, 0.0))
+    assert all(np.array_equal(a, b) for a, b in zip(plain, off, strict=True))
+    grey, grey_geometry, grey_target = augment(crops, geometry, target, np.random.default_rng(1), (0.0, 1.0))
+    # Every crop grey: the three channels of each frame equal, the two frames still apart; the
+    # flips (and so the boxes) are the plain run's.
+    for frame in (slice(0, 3), slice(3, 6)):
+        channels = grey[:, frame]
+        assert np.array_equal(channels[:, 0], channels[:, 1]) and np.array_equal(channels[:, 0], channels[:, 2])
+    assert not np.array_equal(grey[:, 0], grey[:, 3])
+    assert np.array_equal(grey_geometry, plain[1]) and np.array_equal(grey_target, plain[2])
+    # Grey is the BT.601 luma of the flipped crop, before the shared brightness/contrast jitter:
+    # a crop that is already grey stays what the plain run makes of it.
+    flat = np.repeat(crops[:, [0, 3]], 3, axis=1)  # each frame grey already: (B, B, B, B', B', B')
+    np.testing.assert_allclose(
+        augment(flat, geometry, target, np.random.default_rng(1), (0.0, 1.0))[0],
+        augment(flat, geometry, target, np.random.default_rng(1))[0],
+        atol=1e-3,
+    )
+    # Channel gains move each channel by its own factor, the same in both frames.
+    tinted = augment(
+        np.full((4, 6, 2, 2), 100, np.uint8), geometry[:4], target[:4], np.random.default_rng(3), (0.2, 0.0)
+    )[0]
+    per_channel = tinted[:, :, 0, 0]
+    assert np.array_equal(per_channel[:, :3], per_channel[:, 3:])
+    assert (np.ptp(per_channel[:, :3], axis=1) > 0).all()
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "message"),
+    [
+        ("colour_jitter", -0.1, r"^train\.colour_jitter must be in \[0, 1\), got -0\.1$"),
+        ("colour_jitter", 1.0, r"^train\.colour_jitter must be in \[0, 1\), got 1\.0$"),
+        ("grayscale_p", 1.5, r"^train\.grayscale_p must be in \[0, 1\], got 1\.5$"),
+    ],
+)
+def test_a_bad_colour_augmentation_is_refused_in_one_line(tmp_path: Path, key: str, value: float, message: str) -> None:
+    config = tiny_config()
+    config["train"][key] = value
+    with pytest.raises(ValueError, match=message):
+        fit_classifier(config, toy_crops(), toy_crops(seed=1), tmp_path)
+    assert not any(tmp_path.iterdir()), "nothing written"
+    colour = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_colour.yaml")
+    assert (colour["train"]["colour_jitter"], colour["train"]["grayscale_p"]) == (0.2, 0.2)

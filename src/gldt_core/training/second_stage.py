@@ -68,6 +68,11 @@ DEFAULTS: dict[str, Any] = {
         "box_weight": 1.0,
         # > 0: focal loss on the classes (class_loss): the crops already classified right weigh less.
         "focal_gamma": 0.0,
+        # Colour augmentation (augment; 0: off): each crop's blue, green and red scaled by gains
+        # drawn in [1 - colour_jitter, 1 + colour_jitter], and grayscale_p of the crops turned grey.
+        # The sky's colour differs from one recording day to the next and so from clip to clip.
+        "colour_jitter": 0.0,
+        "grayscale_p": 0.0,
         "max_wall_s": None,
     },
 }
@@ -152,10 +157,17 @@ def synthetic_scenes(settings: dict[str, Any]) -> list[SceneCrops]:
 
 
 def augment(
-    crops: np.ndarray, geometry: np.ndarray, target: np.ndarray, rng: np.random.Generator
+    crops: np.ndarray,
+    geometry: np.ndarray,
+    target: np.ndarray,
+    rng: np.random.Generator,
+    colour: tuple[float, float] = (0.0, 0.0),
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Horizontal flips (of the crop, its box and its object's box) and brightness/contrast
-    jitter, the same for both frames."""
+    jitter, the same for both frames; with ``colour`` (:func:`colour_augmentation`, ``(jitter,
+    grayscale_p)``) also per-channel gains in ``[1 - jitter, 1 + jitter]`` and, for a share
+    ``grayscale_p`` of the crops, grey (BT.601 luma in every channel), again the same for both
+    frames. Without ``colour`` the random draws are exactly those of the flips and jitter alone."""
     crops = crops.astype(np.float32)
     geometry = geometry.astype(np.float32)
     target = target.astype(np.float32)
@@ -165,6 +177,18 @@ def augment(
     target[flip, 0] = -target[flip, 0]
     gain = rng.uniform(0.75, 1.25, size=(len(crops), 1, 1, 1)).astype(np.float32)
     bias = rng.uniform(-25, 25, size=(len(crops), 1, 1, 1)).astype(np.float32)
+    jitter, grayscale_p = colour
+    if jitter > 0 or grayscale_p > 0:
+        n, channels, height, width = crops.shape
+        frames = crops.reshape(n, channels // 3, 3, height, width)  # (previous, current) x BGR
+        if jitter > 0:
+            channel_gain = rng.uniform(1 - jitter, 1 + jitter, size=(n, 1, 3, 1, 1)).astype(np.float32)
+            frames *= channel_gain
+        if grayscale_p > 0:
+            grey = rng.random(n) < grayscale_p
+            luma = np.tensordot(frames[grey], np.array([0.114, 0.587, 0.299], np.float32), axes=([2], [0]))
+            frames[grey] = luma[:, :, None]
+        crops = frames.reshape(n, channels, height, width)
     return np.clip(crops * gain + bias, 0, 255), geometry, target
 
 
@@ -179,6 +203,17 @@ def focal_gamma(config: dict[str, Any]) -> float:
     if not gamma >= 0:
         raise ValueError(f"train.focal_gamma must be >= 0, got {config['train']['focal_gamma']!r}")
     return gamma
+
+
+def colour_augmentation(config: dict[str, Any]) -> tuple[float, float]:
+    """``(train.colour_jitter, train.grayscale_p)`` for :func:`augment`; ValueError in one line
+    when the jitter is outside ``[0, 1)`` or the share outside ``[0, 1]``."""
+    jitter, grayscale_p = config["train"]["colour_jitter"], config["train"]["grayscale_p"]
+    if not 0 <= float(jitter) < 1:
+        raise ValueError(f"train.colour_jitter must be in [0, 1), got {jitter!r}")
+    if not 0 <= float(grayscale_p) <= 1:
+        raise ValueError(f"train.grayscale_p must be in [0, 1], got {grayscale_p!r}")
+    return float(jitter), float(grayscale_p)
 
 
 def class_loss(
@@ -363,6 +398,7 @@ def train_second_stage(
     root = Path(data["halmstad_root"] or halmstad_root())
     spec = CropSpec(**data["crops"])
     focal_gamma(config)  # checked before the crops are cut
+    colour_augmentation(config)
     global_model = Path(data["global_model"] or DEFAULT_GLOBAL_MODEL)
     local_model = Path(data["local_model"] or DEFAULT_LOCAL_MODEL)
     fit_clips, calibration_clips = split_for_calibration(halmstad_split(root)["train"], int(data["calibration_period"]))
@@ -421,7 +457,7 @@ def fit_classifier(
     torch.manual_seed(seed)
     model = CropClassifier(**config["model"])
     tcfg = config["train"]
-    gamma, context = focal_gamma(config), crop_context(config)
+    gamma, context, colour = focal_gamma(config), crop_context(config), colour_augmentation(config)
     optimizer = torch.optim.AdamW(model.parameters(), lr=float(tcfg["lr"]), weight_decay=float(tcfg["weight_decay"]))
     batch = int(tcfg["batch_size"])
     steps_per_epoch = math.ceil(len(fit_set) / batch)
@@ -463,7 +499,7 @@ def fit_classifier(
         totals = np.zeros(3)
         for step in range(steps_per_epoch):
             idx = np.sort(order[step * batch : (step + 1) * batch])
-            x, geometry, target = augment(fit_set.crops[idx], fit_set.geometry[idx], fit_set.target[idx], rng)
+            x, geometry, target = augment(fit_set.crops[idx], fit_set.geometry[idx], fit_set.target[idx], rng, colour)
             geometry_t = torch.from_numpy(geometry)
             ce, quality, box = losses(
                 model.outputs(torch.from_numpy(x), geometry_t),
