@@ -375,6 +375,7 @@ def test_colour_augmentation_off_draws_as_before_and_on_changes_colour_only() ->
         ("colour_jitter", -0.1, r"^train\.colour_jitter must be in \[0, 1\), got -0\.1$"),
         ("colour_jitter", 1.0, r"^train\.colour_jitter must be in \[0, 1\), got 1\.0$"),
         ("grayscale_p", 1.5, r"^train\.grayscale_p must be in \[0, 1\], got 1\.5$"),
+        ("grayscale_p", "a fifth", r"^train\.grayscale_p must be in \[0, 1\], got 'a fifth'$"),
     ],
 )
 def test_a_bad_colour_augmentation_is_refused_in_one_line(tmp_path: Path, key: str, value: float, message: str) -> None:

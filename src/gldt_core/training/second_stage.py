@@ -208,12 +208,20 @@ def focal_gamma(config: dict[str, Any]) -> float:
 def colour_augmentation(config: dict[str, Any]) -> tuple[float, float]:
     """``(train.colour_jitter, train.grayscale_p)`` for :func:`augment`; ValueError in one line
     when the jitter is outside ``[0, 1)`` or the share outside ``[0, 1]``."""
-    jitter, grayscale_p = config["train"]["colour_jitter"], config["train"]["grayscale_p"]
-    if not 0 <= float(jitter) < 1:
-        raise ValueError(f"train.colour_jitter must be in [0, 1), got {jitter!r}")
-    if not 0 <= float(grayscale_p) <= 1:
-        raise ValueError(f"train.grayscale_p must be in [0, 1], got {grayscale_p!r}")
-    return float(jitter), float(grayscale_p)
+    train = config["train"]
+
+    def number(key: str) -> float:
+        try:
+            return float(train[key])
+        except (TypeError, ValueError):
+            return float("nan")  # refused below, with the value as given
+
+    jitter, grayscale_p = number("colour_jitter"), number("grayscale_p")
+    if not 0 <= jitter < 1:
+        raise ValueError(f"train.colour_jitter must be in [0, 1), got {train['colour_jitter']!r}")
+    if not 0 <= grayscale_p <= 1:
+        raise ValueError(f"train.grayscale_p must be in [0, 1], got {train['grayscale_p']!r}")
+    return jitter, grayscale_p
 
 
 def class_loss(
