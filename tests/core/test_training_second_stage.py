@@ -325,6 +325,9 @@ def test_a_negative_focal_gamma_is_refused_in_one_line(tmp_path: Path) -> None:
     config["train"]["focal_gamma"] = -1
     with pytest.raises(ValueError, match=r"^train\.focal_gamma must be >= 0, got -1$"):
         fit_classifier(config, toy_crops(), toy_crops(seed=1), tmp_path)
+    config["train"]["focal_gamma"] = "two"
+    with pytest.raises(ValueError, match=r"^train\.focal_gamma must be >= 0, got 'two'$"):
+        fit_classifier(config, toy_crops(), toy_crops(seed=1), tmp_path)
     assert not any(tmp_path.iterdir()), "nothing written"
     torch.set_num_threads(1)
     config["train"]["focal_gamma"] = 2.0

@@ -197,9 +197,18 @@ def crop_context(config: dict[str, Any]) -> float:
     return float(config["data"]["crops"]["context"])
 
 
+def _train_number(config: dict[str, Any], key: str) -> float:
+    """``train.<key>`` as a float; NaN where it is not a number, so that the caller's range check
+    refuses it in one line with the value as given."""
+    try:
+        return float(config["train"][key])
+    except (TypeError, ValueError):
+        return float("nan")
+
+
 def focal_gamma(config: dict[str, Any]) -> float:
-    """``train.focal_gamma`` (:func:`class_loss`); ValueError in one line when negative."""
-    gamma = float(config["train"]["focal_gamma"])
+    """``train.focal_gamma`` (:func:`class_loss`); ValueError in one line when negative or not a number."""
+    gamma = _train_number(config, "focal_gamma")
     if not gamma >= 0:
         raise ValueError(f"train.focal_gamma must be >= 0, got {config['train']['focal_gamma']!r}")
     return gamma
@@ -209,14 +218,7 @@ def colour_augmentation(config: dict[str, Any]) -> tuple[float, float]:
     """``(train.colour_jitter, train.grayscale_p)`` for :func:`augment`; ValueError in one line
     when the jitter is outside ``[0, 1)`` or the share outside ``[0, 1]``."""
     train = config["train"]
-
-    def number(key: str) -> float:
-        try:
-            return float(train[key])
-        except (TypeError, ValueError):
-            return float("nan")  # refused below, with the value as given
-
-    jitter, grayscale_p = number("colour_jitter"), number("grayscale_p")
+    jitter, grayscale_p = _train_number(config, "colour_jitter"), _train_number(config, "grayscale_p")
     if not 0 <= jitter < 1:
         raise ValueError(f"train.colour_jitter must be in [0, 1), got {train['colour_jitter']!r}")
     if not 0 <= grayscale_p <= 1:
