@@ -601,3 +601,28 @@ def test_invalid_detections_are_dropped_and_counted():
     _, outputs = run(pipeline, range(6))
     assert pipeline.state.invalid_detections == 12
     assert len(outputs[-1]) == 1 and np.all(np.isfinite(pipeline.state.detections))
+
+
+def test_false_drone_tracks_lists_each_track_with_what_its_detections_said():
+    """A clip "without drones" whose two objects the detectors call drones: both tracks are listed,
+    their rows add up to the clip's count, and their evidence is the detectors' (one-hot) drone."""
+    from gldt_core.bench.ablation import false_drone_tracks, format_false_drone_tracks
+
+    scene = Scene([[200, 300], [1500, 800]], [[4, 1], [-3, 0]])
+    frames = 40
+    config = SystemConfig(scheduler=SchedulerConfig(n_global=10, n_local=30))
+    detectors = (GroundTruthGlobal(scene), GroundTruthLocal(scene))
+    by_clip, counted, tracks = false_drone_tracks(
+        [ScriptedSequence("V_AIRPLANE_X", np.zeros((0, 10)), frames)], config, detectors
+    )
+    assert counted == frames
+    assert len(tracks) == 2 and {t["clip"] for t in tracks} == {"V_AIRPLANE_X"}
+    assert sum(t["rows"] for t in tracks) == by_clip["V_AIRPLANE_X"] > frames
+    assert all(t["mean_probabilities"] == [1.0, 0.0, 0.0] for t in tracks)
+    line = format_false_drone_tracks(tracks)
+    assert line.startswith("false drone tracks (mean P drone/bird/airplane of their detections): V_AIRPLANE_X #")
+    assert line.count("rows 1.00/0.00/0.00") == 2
+    assert format_false_drone_tracks([]).endswith(": none")
+    assert format_false_drone_tracks([{"clip": "c", "track_id": 4, "rows": 3, "mean_probabilities": None}]).endswith(
+        "c #4 3 rows no class evidence"
+    )

@@ -57,7 +57,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         type=int,
         default=0,
         help="bird/airplane clips of the split on which GD+LD+JPTrack's drone track rows are counted "
-        "(all false; default 0 = none)",
+        "(all false) and each such track listed with its detections' mean class probabilities (default 0 = none)",
     )
     parser.add_argument("--clip-frames", type=int, default=None, help="frames per clip (default: all)")
     parser.add_argument(
@@ -413,17 +413,19 @@ def _ratio_without_decode(ours: dict[str, Any], peer: dict[str, Any]) -> float |
     return peer_ms / ours_ms if ours_ms > 0 and peer_ms > 0 else None
 
 
-def false_drone_track_rows(
+def false_drone_tracks(
     sequences: list[CachedSequence], config: Any, detectors: tuple[Any, Any]
-) -> tuple[dict[str, int], int]:
-    """Track rows published as drones by GD+LD+JPTrack on clips without drones, per clip, and the
-    frames of all the clips together."""
+) -> tuple[dict[str, int], int, list[dict[str, Any]]]:
+    """What GD+LD+JPTrack publishes as drones on clips without drones: the track rows per clip,
+    the frames of all the clips together, and each such track with the mean class probabilities of
+    the detections it was matched with (``None`` where it has none)."""
     from gldt_core.system.gldt_system import GLDTSystem, build_tracker
     from gldt_core.system.runner import run_frames
-    from gldt_core.track.class_evidence import drone_track_rows
+    from gldt_core.track.class_evidence import drone_track_rows, drone_tracks
 
     system_config = config.with_changes(local_enabled=True, tracker="jptrack")
     rows: dict[str, int] = {}
+    tracks: list[dict[str, Any]] = []
     frames = 0
     for sequence in sequences:
         system = GLDTSystem(
@@ -434,8 +436,24 @@ def false_drone_track_rows(
         )
         result = run_frames(system, sequence)
         rows[sequence.name] = drone_track_rows(result.rows)
+        for track_id, count, probabilities in drone_tracks(result.rows, system.class_evidence):
+            mean = None if probabilities is None else [round(float(p), 4) for p in probabilities]
+            tracks.append({"clip": sequence.name, "track_id": track_id, "rows": count, "mean_probabilities": mean})
         frames += result.frames
-    return rows, frames
+    return rows, frames, tracks
+
+
+def format_false_drone_tracks(tracks: list[dict[str, Any]]) -> str:
+    """One line: each false drone track, most rows first, with what the classifier said of it."""
+
+    def said(track: dict[str, Any]) -> str:
+        mean = track["mean_probabilities"]
+        return "no class evidence" if mean is None else "/".join(f"{p:.2f}" for p in mean)
+
+    ordered = sorted(tracks, key=lambda track: -track["rows"])
+    return "false drone tracks (mean P drone/bird/airplane of their detections): " + (
+        ", ".join(f"{t['clip']} #{t['track_id']} {t['rows']} rows {said(t)}" for t in ordered) or "none"
+    )
 
 
 def handle_ablation(args: argparse.Namespace) -> int:
@@ -484,15 +502,17 @@ def handle_ablation(args: argparse.Namespace) -> int:
 
         root = args.halmstad or str(halmstad_root())
         others = halmstad_sequences(root, args.other_clips, args.clip_frames, args.split, category="other")
-        by_clip, frames = false_drone_track_rows(others, config, detectors)
+        by_clip, frames, tracks = false_drone_tracks(others, config, detectors)
         rate = sum(by_clip.values()) / frames if frames else float("nan")
         report[f"false_drone_track_rows_per_frame_{args.split}"] = rate
         report[f"false_drone_track_rows_by_clip_{args.split}"] = by_clip
+        report[f"false_drone_tracks_{args.split}"] = tracks
         where = clips_most_first(by_clip)
         print(
             f"bird/airplane clips of {args.split} ({', '.join(s.name for s in others)}): GD+LD+JPTrack publishes "
             f"{rate:.3f} drone track rows per frame (all false)" + (f"; rows on {where}" if where else "")
         )
+        print(format_false_drone_tracks(tracks))
     if args.json:
         path = Path(args.json)
         temporary = path.with_name(path.name + ".part")

@@ -324,6 +324,12 @@ def _run(args: argparse.Namespace) -> int:
     roi_side = int(detectors["local"].card.get("roi_side", 300))
     thresholds = {name: _operating_threshold(args, detector) for name, detector in detectors.items()}
     report: dict = {"operating_thresholds": thresholds, "datasets": {}}
+    rescoring = next((d.second_stage for d in detectors.values() if d.second_stage is not None), None)
+    if rescoring is not None:  # which stage this was, and its figures on the calibration clips (`gldt bench seeds`)
+        report["second_stage"] = {
+            "path": str(rescoring.model_path),
+            "calibration_clip_figures": rescoring.card.get("calibration_clip_figures"),
+        }
 
     datasets: dict[str, tuple[list, list]] = {}
     negatives: dict[str, dict[str, list]] = {}  # split -> bird/airplane clip -> its frame pairs

@@ -79,12 +79,19 @@ class ClassEvidence:
 
     def label(self, track_id: int) -> tuple[int, float]:
         """``(class_id, confidence)`` of one track; ``(-1, 0.0)`` without evidence."""
-        count = self._counts.get(track_id, 0)
-        if count == 0:
+        mean = self.probabilities(track_id)
+        if mean is None:
             return UNKNOWN_CLASS_ID, 0.0
-        mean = self._sums[track_id] / count
         best = int(np.argmax(mean))
         return CLASS_IDS[best], float(mean[best])
+
+    def probabilities(self, track_id: int) -> np.ndarray | None:
+        """The mean drone, bird and airplane probabilities of the detections matched with one
+        track, ``(3,)``; None without evidence (or once it is forgotten)."""
+        count = self._counts.get(track_id, 0)
+        if count == 0:
+            return None
+        return self._sums[track_id] / count
 
     def _add(self, track_id: int, probabilities: np.ndarray) -> None:
         if not np.all(np.isfinite(probabilities)):
@@ -101,8 +108,21 @@ class ClassEvidence:
             self._counts.pop(track_id, None)
 
 
+def _published_as_drones(table: np.ndarray) -> np.ndarray:
+    return np.isin(table[:, 7], (CLASS_IDS[0], UNKNOWN_CLASS_ID))
+
+
 def drone_track_rows(rows: np.ndarray) -> int:
     """MOT track rows ``(N, 10)`` published as drones: class (column 8) a drone, or unknown where a
     track has no class evidence yet (a planner must treat those as drones)."""
+    return int(_published_as_drones(np.asarray(rows, dtype=np.float64).reshape(-1, 10)).sum())
+
+
+def drone_tracks(rows: np.ndarray, evidence: ClassEvidence) -> list[tuple[int, int, np.ndarray | None]]:
+    """``(track id, rows published as a drone, mean class probabilities or None)`` of each track in
+    MOT ``rows`` with any row published as a drone (:func:`drone_track_rows`), most rows first: what
+    the classifier said of the tracks a clip without drones should not have."""
     table = np.asarray(rows, dtype=np.float64).reshape(-1, 10)
-    return int(np.isin(table[:, 7], (CLASS_IDS[0], UNKNOWN_CLASS_ID)).sum())
+    ids, counts = np.unique(table[_published_as_drones(table), 1].astype(np.int64), return_counts=True)
+    order = sorted(zip(ids.tolist(), counts.tolist()), key=lambda pair: (-pair[1], pair[0]))
+    return [(track_id, count, evidence.probabilities(track_id)) for track_id, count in order]

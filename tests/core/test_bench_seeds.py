@@ -1,0 +1,86 @@
+"""`gldt bench seeds`: variants compared over their seeds' detection reports."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from gldt_core.bench.seeds import format_summary, parse_variant, seed_figures, summarise
+from gldt_core.cli import main
+
+
+def report(ap_val: float, ap_val_b: float, fd_val: float, fd_val_b: float, accuracy: float | None = None) -> dict:
+    def row(ap: float) -> dict:
+        return {"fused+2nd": {"ap50": ap, "precision_at_threshold": 0.9, "recall_at_threshold": ap - 0.1}}
+
+    out: dict = {
+        "datasets": {"real-val": row(ap_val), "real-val-b": row(ap_val_b), "synthetic-test": row(0.1)},
+        "false_drones_per_frame": {"real-val": {"fused+2nd": fd_val}, "real-val-b": {"fused+2nd": fd_val_b}},
+    }
+    if accuracy is not None:
+        out["second_stage"] = {"path": "x.onnx", "calibration_clip_figures": {"accuracy": accuracy}}
+    return out
+
+
+def test_a_seed_is_read_by_its_worst_split() -> None:
+    figures = seed_figures(report(0.87, 0.93, 0.10, 0.12, 0.88), "fused+2nd")
+    assert figures["worst split AP50"] == 0.87  # the synthetic row is not a validation split
+    assert figures["worst split false drones/frame"] == 0.12
+    assert figures["calibration accuracy"] == 0.88
+    assert figures["recall real-val-b"] == pytest.approx(0.83)
+    assert "calibration accuracy" not in seed_figures(report(0.87, 0.93, 0.1, 0.1), "fused+2nd")
+    with pytest.raises(ValueError, match="^r.json: no row 'local' for real-val"):
+        seed_figures(report(0.87, 0.93, 0.1, 0.1), "local", "r.json")
+    with pytest.raises(ValueError, match="no real validation split"):
+        seed_figures({"datasets": {}}, "fused+2nd")
+
+
+def test_variants_are_summarised_over_their_seeds_against_the_first() -> None:
+    peer = summarise(
+        [
+            seed_figures(report(0.86, 0.93, 0.10, 0.06), "fused+2nd"),
+            seed_figures(report(0.87, 0.94, 0.13, 0.11), "fused+2nd"),
+        ]
+    )
+    other = summarise([seed_figures(report(0.85, 0.93, 0.04, 0.03, 0.9), "fused+2nd")])
+    assert peer["worst split AP50"] == {"mean": pytest.approx(0.865), "min": 0.86, "max": 0.87, "seeds": 2}
+    assert peer["worst split false drones/frame"]["mean"] == pytest.approx(0.115)
+    table = format_summary({"shipped": peer, "grey": other})
+    line = next(row for row in table.splitlines() if row.startswith("worst split false drones/frame"))
+    assert "0.1150 [0.100-0.130] n2" in line and "-0.0750" in line and line.endswith("0.0300")
+    accuracy = next(row for row in table.splitlines() if row.startswith("calibration accuracy"))
+    assert "0.9000 [0.900-0.900] n1" in accuracy  # the peer has none: no difference printed
+    assert " - " in accuracy
+
+
+def test_the_command_reads_reports_or_their_folders_and_says_what_is_wrong(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    for name, values in {
+        "a0": (0.86, 0.93, 0.1, 0.06),
+        "a1": (0.87, 0.94, 0.13, 0.11),
+        "b0": (0.85, 0.93, 0.04, 0.03),
+    }.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "report.json").write_text(json.dumps(report(*values)))
+    out = tmp_path / "summary.json"
+    code = main(
+        [
+            "bench", "seeds", "--variant", f"shipped={tmp_path / 'a0'},{tmp_path / 'a1' / 'report.json'}",
+            "--variant", f"grey={tmp_path / 'b0'}", "--json", str(out),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "row fused+2nd" in printed and "difference from shipped" in printed
+    assert json.loads(out.read_text())["variants"]["shipped"]["worst split AP50"]["seeds"] == 2
+    assert parse_variant("x=a, b")[0] == "x"
+    with pytest.raises(ValueError, match="expected NAME=REPORT"):
+        parse_variant("shipped")
+    (tmp_path / "bad.json").write_text("{")
+    assert main(["bench", "seeds", "--variant", f"x={tmp_path / 'bad.json'}"]) != 0
+    assert "bad.json: not a JSON report" in capsys.readouterr().err
+    assert main(["bench", "seeds", "--variant", f"x={tmp_path / 'none.json'}"]) != 0
+    assert "none.json: no such report" in capsys.readouterr().err
