@@ -51,8 +51,36 @@ def test_variants_are_summarised_over_their_seeds_against_the_first() -> None:
     line = next(row for row in table.splitlines() if row.startswith("worst split false drones/frame"))
     assert "0.1150 [0.100-0.130] n2" in line and "-0.0750" in line and line.endswith("0.0300")
     accuracy = next(row for row in table.splitlines() if row.startswith("calibration accuracy"))
-    assert "0.9000 [0.900-0.900] n1" in accuracy  # the peer has none: no difference printed
-    assert " - " in accuracy
+    assert "0.9000 [0.900-0.900] n1" in accuracy  # the peer has none: no difference, no spread
+    assert accuracy.split()[-2:] == ["-", "-"]
+    alone = format_summary({"grey": other, "shipped": peer})  # a peer of one seed has no spread
+    assert next(row for row in alone.splitlines() if row.startswith("worst split AP50")).endswith(" -")
+
+
+def test_reports_that_lack_a_figure_or_differ_in_their_runs_are_refused(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    partial = report(0.87, 0.93, 0.1, 0.1)
+    del partial["false_drones_per_frame"]["real-val-b"]
+    with pytest.raises(ValueError, match="^p.json: false drones of real-val-b missing or not a table$"):
+        seed_figures(partial, "fused+2nd", "p.json")
+    broken = report(0.87, 0.93, 0.1, 0.1)
+    del broken["datasets"]["real-val"]["fused+2nd"]["ap50"]
+    with pytest.raises(ValueError, match="^b.json: real-val fused\\+2nd has no number 'ap50'$"):
+        seed_figures(broken, "fused+2nd", "b.json")
+    with pytest.raises(ValueError, match="the report missing or not a table"):
+        seed_figures([1, 2], "fused+2nd")
+    with pytest.raises(ValueError, match="without empty reports"):
+        parse_variant("grey=a,")
+    one, other = report(0.87, 0.93, 0.1, 0.1), report(0.87, 0.93, 0.1, 0.1)
+    one["real-val_clips"], other["real-val_clips"] = ["V_DRONE_004"], ["V_DRONE_011"]
+    (tmp_path / "one.json").write_text(json.dumps(one))
+    (tmp_path / "other.json").write_text(json.dumps(other))
+    assert (
+        main(["bench", "seeds", "--variant", f"a={tmp_path / 'one.json'}", "--variant", f"b={tmp_path / 'other.json'}"])
+        == 2
+    )
+    assert "other.json: benched on other clips or at another threshold than" in capsys.readouterr().err
 
 
 def test_the_command_reads_reports_or_their_folders_and_says_what_is_wrong(
@@ -74,7 +102,7 @@ def test_the_command_reads_reports_or_their_folders_and_says_what_is_wrong(
     )  # fmt: skip
     assert code == 0
     printed = capsys.readouterr().out
-    assert "row fused+2nd" in printed and "difference from shipped" in printed
+    assert "row fused+2nd" in printed and "grey - shipped" in printed
     assert json.loads(out.read_text())["variants"]["shipped"]["worst split AP50"]["seeds"] == 2
     assert parse_variant("x=a, b")[0] == "x"
     with pytest.raises(ValueError, match="expected NAME=REPORT"):

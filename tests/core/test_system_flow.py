@@ -626,3 +626,21 @@ def test_false_drone_tracks_lists_each_track_with_what_its_detections_said():
     assert format_false_drone_tracks([{"clip": "c", "track_id": 4, "rows": 3, "mean_probabilities": None}]).endswith(
         "c #4 3 rows no class evidence"
     )
+
+
+def test_a_tracks_evidence_is_kept_as_it_was_when_last_reported():
+    """ClassEvidence forgets a track some time after its last report; the ablation's list does not."""
+    from gldt_core.bench.ablation import LastClassEvidence
+    from gldt_core.track.class_evidence import ClassEvidence
+
+    evidence = ClassEvidence(forget_after_frames=2)
+    last = LastClassEvidence(evidence)
+    track = np.array([[100, 100, 120, 115, 7, 0.8]])
+    evidence.update(track, track[:, :5], np.array([[0.2, 0.1, 0.7]]))
+    last.note(None, track)
+    for _ in range(4):
+        evidence.update(np.zeros((0, 6)), np.zeros((0, 5)), np.zeros((0, 3)))
+        last.note(None, np.zeros((0, 6)))
+    assert evidence.probabilities(7) is None
+    np.testing.assert_allclose(last.probabilities(7), [0.2, 0.1, 0.7])
+    assert last.probabilities(8) is None

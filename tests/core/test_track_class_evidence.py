@@ -80,9 +80,9 @@ def test_drone_tracks_lists_the_tracks_published_as_drones_most_rows_first() -> 
             [2, 9, 50, 50, 20, 15, 0.6, 2, -1, -1],  # a bird: not listed
         ]
     )
-    listed = drone_tracks(rows, evidence)
+    listed = drone_tracks(rows, evidence.probabilities)
     assert [(track_id, count) for track_id, count, _ in listed] == [(7, 2), (3, 1)]
     np.testing.assert_allclose(listed[0][2], DRONE[0])
     assert listed[1][2] is None
     assert drone_track_rows(rows) == 3
-    assert drone_tracks(np.zeros((0, 10)), evidence) == []
+    assert drone_tracks(np.zeros((0, 10)), evidence.probabilities) == []

@@ -413,6 +413,23 @@ def _ratio_without_decode(ours: dict[str, Any], peer: dict[str, Any]) -> float |
     return peer_ms / ours_ms if ours_ms > 0 and peer_ms > 0 else None
 
 
+class LastClassEvidence:
+    """Each track's class evidence as it stood when the track was last reported
+    (:class:`~gldt_core.track.class_evidence.ClassEvidence` forgets a track some time after)."""
+
+    def __init__(self, evidence: Any) -> None:
+        self.evidence = evidence
+        self._said: dict[int, Any] = {}
+
+    def note(self, _frame: Any, tracks: Any) -> None:
+        """``run_frames``' ``on_frame``: ``tracks`` ``(M, >=5)`` ``[x1, y1, x2, y2, id, ...]``."""
+        for track_id in (int(row[4]) for row in tracks):
+            self._said[track_id] = self.evidence.probabilities(track_id)
+
+    def probabilities(self, track_id: int) -> Any:
+        return self._said.get(track_id)
+
+
 def false_drone_tracks(
     sequences: list[CachedSequence], config: Any, detectors: tuple[Any, Any]
 ) -> tuple[dict[str, int], int, list[dict[str, Any]]]:
@@ -434,9 +451,10 @@ def false_drone_tracks(
             local_detector=detectors[1],
             tracker=build_tracker(system_config),
         )
-        result = run_frames(system, sequence)
+        last = LastClassEvidence(system.class_evidence)
+        result = run_frames(system, sequence, on_frame=last.note)
         rows[sequence.name] = drone_track_rows(result.rows)
-        for track_id, count, probabilities in drone_tracks(result.rows, system.class_evidence):
+        for track_id, count, probabilities in drone_tracks(result.rows, last.probabilities):
             mean = None if probabilities is None else [round(float(p), 4) for p in probabilities]
             tracks.append({"clip": sequence.name, "track_id": track_id, "rows": count, "mean_probabilities": mean})
         frames += result.frames

@@ -1,11 +1,10 @@
 """``gldt bench seeds``: variants of a model compared over several training seeds, not one.
 
 A second stage trained twice from the same config with two seeds can differ by more than two
-configs do: the shipped config's false drones per frame on ``val_b`` ran from 0.056 to 0.112 over
-four seeds (docs/experiment-log.md, "grey crops over four seeds"). A variant judged on one or two
-seeds is judged on its luck. This command reads the ``report.json`` files that ``gldt bench
-detection --out DIR`` writes, one per trained seed, groups them by variant, and prints for each
-variant the mean, lowest and highest over its seeds of
+configs do, above all in its false drones per frame (docs/experiment-log.md, "grey crops over four
+seeds"). A variant judged on one or two seeds is judged on its luck. This command reads the
+``report.json`` files that ``gldt bench detection --out DIR`` writes, one per trained seed, groups
+them by variant, and prints for each variant the mean, lowest and highest over its seeds of
 
 * the second stage's accuracy on its calibration clips (from its model card, as recorded in the
   report; absent in reports written before the report carried it),
@@ -25,14 +24,21 @@ import json
 from pathlib import Path
 from typing import Any
 
+from gldt_core.bench.detection import FUSED
+
 #: The detection bench's row read by default: AM-YOLO's and the tiled local model's calibrated
 #: boxes fused, what a GD frame reports.
-DEFAULT_ROW = "fused+2nd"
+DEFAULT_ROW = FUSED
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
-        "seeds", help="compare model variants over several training seeds (reads gldt bench detection reports)"
+        "seeds",
+        help="compare model variants over several training seeds (reads gldt bench detection reports)",
+        description="Each figure of each variant as 'mean [lowest-highest] nN' over its N seeds; for each "
+        "variant after the first, its mean minus the first's, and the first's spread over its seeds "
+        "(highest minus lowest; '-' with fewer than two seeds): a difference within that spread is what "
+        "the seeds alone would make. Reports must come from runs over the same clips.",
     )
     parser.add_argument(
         "--variant",
@@ -42,7 +48,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="a variant and the report.json of each of its seeds (or the --out folders holding them); "
         "repeat for each variant, the peer first",
     )
-    parser.add_argument("--row", default=DEFAULT_ROW, help=f"detection bench row to read (default {DEFAULT_ROW})")
+    parser.add_argument(
+        "--row",
+        default=DEFAULT_ROW,
+        help=f"detection bench row to read: AM-YOLO+2nd, AM-YOLO, no-STFF, local+2nd, local or {FUSED} "
+        f"(default {DEFAULT_ROW})",
+    )
     parser.add_argument("--json", default=None, help="also write the summary here")
     parser.set_defaults(func=_run)
 
@@ -50,41 +61,62 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def parse_variant(text: str) -> tuple[str, list[Path]]:
     """``NAME=A,B`` -> (NAME, [A/report.json or A, ...]); one clear error for anything else."""
     name, sep, paths = text.partition("=")
-    if not sep or not name.strip() or not paths.strip():
-        raise ValueError(f"--variant {text!r}: expected NAME=REPORT[,REPORT...]")
-    reports = []
-    for item in paths.split(","):
-        path = Path(item.strip())
-        reports.append(path / "report.json" if path.is_dir() else path)
-    return name.strip(), reports
+    items = [item.strip() for item in paths.split(",")]
+    if not sep or not name.strip() or not all(items):
+        raise ValueError(f"--variant {text!r}: expected NAME=REPORT[,REPORT...] without empty reports")
+    return name.strip(), [Path(item) / "report.json" if Path(item).is_dir() else Path(item) for item in items]
 
 
-def seed_figures(report: dict[str, Any], row: str, source: str = "report") -> dict[str, float]:
+def _table(value: Any, source: str, what: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ValueError(f"{source}: {what} missing or not a table")
+    return value
+
+
+def _number(table: dict[str, Any], key: str, source: str, what: str) -> float:
+    value = table.get(key)
+    if not isinstance(value, int | float) or isinstance(value, bool):
+        raise ValueError(f"{source}: {what} has no number {key!r}")
+    return float(value)
+
+
+def seed_figures(report: Any, row: str, source: str = "report") -> dict[str, float]:
     """The figures of one seed's detection report for ``row``: worst split's AP50 and false drones
     per frame, precision and recall on each split, and the calibration accuracy when recorded."""
-    datasets = report.get("datasets") or {}
+    datasets = _table(_table(report, source, "the report").get("datasets"), source, "datasets")
     splits = sorted(name for name in datasets if name.startswith("real-"))
     if not splits:
         raise ValueError(f"{source}: no real validation split in its datasets")
+    false_drones = report.get("false_drones_per_frame")
     figures: dict[str, float] = {}
-    ap50, false_drones = [], []
+    ap50, worst_false = [], []
     for split in splits:
-        if row not in datasets[split]:
-            raise ValueError(f"{source}: no row {row!r} for {split} (rows: {', '.join(datasets[split])})")
-        metrics = datasets[split][row]
-        ap50.append(float(metrics["ap50"]))
-        figures[f"precision {split}"] = float(metrics["precision_at_threshold"])
-        figures[f"recall {split}"] = float(metrics["recall_at_threshold"])
-        per_frame = (report.get("false_drones_per_frame") or {}).get(split, {})
-        if row in per_frame:
-            false_drones.append(float(per_frame[row]))
+        rows = _table(datasets[split], source, split)
+        if row not in rows:
+            raise ValueError(f"{source}: no row {row!r} for {split} (rows: {', '.join(rows)})")
+        metrics = _table(rows[row], source, f"{split} {row}")
+        ap50.append(_number(metrics, "ap50", source, f"{split} {row}"))
+        figures[f"precision {split}"] = _number(metrics, "precision_at_threshold", source, f"{split} {row}")
+        figures[f"recall {split}"] = _number(metrics, "recall_at_threshold", source, f"{split} {row}")
+        if false_drones is not None:
+            split_false = _table(
+                _table(false_drones, source, "false_drones_per_frame").get(split), source, f"false drones of {split}"
+            )
+            worst_false.append(_number(split_false, row, source, f"false drones of {split}"))
     figures["worst split AP50"] = min(ap50)
-    if false_drones:
-        figures["worst split false drones/frame"] = max(false_drones)
+    if worst_false:
+        figures["worst split false drones/frame"] = max(worst_false)
     calibration = ((report.get("second_stage") or {}).get("calibration_clip_figures") or {}).get("accuracy")
     if calibration is not None:
         figures["calibration accuracy"] = float(calibration)
     return figures
+
+
+def run_settings(report: dict[str, Any], row: str) -> tuple[Any, ...]:
+    """What must be the same for two reports to be compared: the clips of each split, and the
+    row's operating threshold."""
+    clips = tuple(sorted((key, tuple(value)) for key, value in report.items() if key.endswith("_clips")))
+    return clips, (report.get("operating_thresholds") or {}).get(row)
 
 
 def summarise(seeds: list[dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -99,13 +131,15 @@ def summarise(seeds: list[dict[str, float]]) -> dict[str, dict[str, float]]:
 
 def format_summary(summaries: dict[str, dict[str, dict[str, float]]]) -> str:
     """One table: a line per figure, a column per variant (mean [lowest-highest] over its seeds);
-    for each variant after the first, its mean's difference from the first's, and the first's spread."""
+    for each variant after the first, its mean's difference from the first's, and the first's
+    spread ('-' where the first has fewer than two seeds for that figure)."""
     names = list(summaries)
     peer = names[0]
     figures = sorted({figure for summary in summaries.values() for figure in summary})
     header = f"{'figure':34s} " + " ".join(f"{name[:26]:>26s}" for name in names)
+    header += "".join(f"  {name[:12] + ' - ' + peer[:12]:>27s}" for name in names[1:])
     if len(names) > 1:
-        header += f"  {'difference from ' + peer[:18]:>34s}  {peer[:12] + ' spread':>19s}"
+        header += f"  {peer[:12] + ' spread':>19s}"
     lines = [header]
     for figure in figures:
         cells = []
@@ -116,35 +150,43 @@ def format_summary(summaries: dict[str, dict[str, dict[str, float]]]) -> str:
             )
         line = f"{figure:34s} " + " ".join(f"{cell:>26s}" for cell in cells)
         base = summaries[peer].get(figure)
-        if len(names) > 1 and base is not None:
-            differences = [
-                f"{summaries[name][figure]['mean'] - base['mean']:+.4f}" if figure in summaries[name] else "-"
-                for name in names[1:]
-            ]
-            line += f"  {', '.join(differences):>34s}  {base['max'] - base['min']:>19.4f}"
+        for name in names[1:]:
+            other = summaries[name].get(figure)
+            line += f"  {other['mean'] - base['mean']:>+27.4f}" if other and base else f"  {'-':>27s}"
+        if len(names) > 1:
+            spread = f"{base['max'] - base['min']:.4f}" if base and base["seeds"] >= 2 else "-"
+            line += f"  {spread:>19s}"
         lines.append(line)
     return "\n".join(lines)
 
 
+def _read(path: Path) -> Any:
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise ValueError(f"{path}: no such report (gldt bench detection --out DIR writes DIR/report.json)") from None
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: not a JSON report ({error.msg}, line {error.lineno})") from None
+
+
 def _run(args: argparse.Namespace) -> int:
     summaries: dict[str, dict[str, dict[str, float]]] = {}
+    first: tuple[Path, tuple[Any, ...]] | None = None
     for text in args.variant:
         name, paths = parse_variant(text)
         if name in summaries:
             raise ValueError(f"--variant {name!r} given twice")
         seeds = []
         for path in paths:
-            try:
-                report = json.loads(path.read_text())
-            except FileNotFoundError:
-                raise ValueError(
-                    f"{path}: no such report (gldt bench detection --out DIR writes DIR/report.json)"
-                ) from None
-            except json.JSONDecodeError as error:
-                raise ValueError(f"{path}: not a JSON report ({error.msg}, line {error.lineno})") from None
+            report = _read(path)
             seeds.append(seed_figures(report, args.row, str(path)))
+            settings = run_settings(report, args.row)
+            if first is None:
+                first = (path, settings)
+            elif settings != first[1]:
+                raise ValueError(f"{path}: benched on other clips or at another threshold than {first[0]}")
         summaries[name] = summarise(seeds)
-    print(f"row {args.row}: mean [lowest-highest] over each variant's seeds")
+    print(f"row {args.row}: mean [lowest-highest] nN over each variant's N seeds")
     print(format_summary(summaries))
     if args.json:
         Path(args.json).write_text(json.dumps({"row": args.row, "variants": summaries}, indent=2))

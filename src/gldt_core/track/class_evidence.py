@@ -12,6 +12,8 @@ matched with), so neither tracker needs to carry the probabilities itself.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from gldt_core.track.boxes import iou_xyxy
@@ -118,11 +120,15 @@ def drone_track_rows(rows: np.ndarray) -> int:
     return int(_published_as_drones(np.asarray(rows, dtype=np.float64).reshape(-1, 10)).sum())
 
 
-def drone_tracks(rows: np.ndarray, evidence: ClassEvidence) -> list[tuple[int, int, np.ndarray | None]]:
+def drone_tracks(
+    rows: np.ndarray, probabilities: Callable[[int], np.ndarray | None]
+) -> list[tuple[int, int, np.ndarray | None]]:
     """``(track id, rows published as a drone, mean class probabilities or None)`` of each track in
     MOT ``rows`` with any row published as a drone (:func:`drone_track_rows`), most rows first: what
-    the classifier said of the tracks a clip without drones should not have."""
+    the classifier said of the tracks a clip without drones should not have. ``probabilities``
+    gives a track's mean class probabilities by id (:meth:`ClassEvidence.probabilities`, or what
+    it said when the track was last reported)."""
     table = np.asarray(rows, dtype=np.float64).reshape(-1, 10)
     ids, counts = np.unique(table[_published_as_drones(table), 1].astype(np.int64), return_counts=True)
     order = sorted(zip(ids.tolist(), counts.tolist()), key=lambda pair: (-pair[1], pair[0]))
-    return [(track_id, count, evidence.probabilities(track_id)) for track_id, count in order]
+    return [(track_id, count, probabilities(track_id)) for track_id, count in order]
