@@ -63,7 +63,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--halmstad",
         default=None,
-        help="Halmstad dataset root (skipped with a message when absent)",
+        help="Halmstad dataset root (default: $GLDT_HALMSTAD, else ../shared/data/halmstad-visible beside the "
+        "checkout; skipped with a message when absent)",
     )
     parser.add_argument("--config", metavar="CFG.yaml", help="GL-DT system configuration (defaults: Table I)")
     parser.add_argument(

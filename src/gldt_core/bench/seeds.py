@@ -51,8 +51,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--row",
         default=DEFAULT_ROW,
-        help=f"detection bench row to read: AM-YOLO+2nd, AM-YOLO, no-STFF, local+2nd, local or {FUSED} "
-        f"(default {DEFAULT_ROW})",
+        help=f"detection bench row to read (default {DEFAULT_ROW}; a report lacking it names the rows it has)",
     )
     parser.add_argument("--json", default=None, help="also write the summary here")
     parser.set_defaults(func=_run)

@@ -91,7 +91,7 @@ def compare(offline_tracks: Path, record: Path) -> str:
     )
     frames = len(np.unique(graph[:, 0])) if len(graph) else 0
     verdict = "identical to the offline run" if same else "DIFFERENT from the offline run"
-    return f"demo: ROS graph published {len(graph)} track rows over {frames} frames, {verdict}"
+    return f"demo: ROS graph published {len(graph)} track rows on {frames} frames with tracks, {verdict}"
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

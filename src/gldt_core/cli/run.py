@@ -47,7 +47,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--config", metavar="CFG.yaml", help="GL-DT system configuration (defaults: paper Table I)")
     parser.add_argument("--gt", metavar="GT.txt", help="ground truth for a video; prints MOTA/IDF1/HOTA at the end")
     parser.add_argument("--max-frames", type=int, metavar="N", help="stop after N frames")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument(
+        "--no-progress", action="store_true", help="no progress bar (none either where stderr is not a terminal)"
+    )
     parser.add_argument(
         "--prefetch",
         type=int,
@@ -109,7 +111,7 @@ def handle_run(args: argparse.Namespace) -> int:
 
     writer = OverlayVideoWriter(args.render, fps) if args.render else None
     progress = None
-    if not args.no_progress:
+    if not args.no_progress and sys.stderr.isatty():  # a log file gets no carriage-return updates
         from tqdm import tqdm
 
         progress = tqdm(total=total, unit="frame", desc="gldt run", file=sys.stderr, leave=False)
@@ -161,7 +163,7 @@ def handle_run(args: argparse.Namespace) -> int:
     track_ids = len(np.unique(result.rows[:, 1])) if len(result.rows) else 0
     print(
         f"gldt run: {result.frames} frames, {result.fps:.1f} FPS, GD on {result.global_share:.0%} of frames, "
-        f"{track_ids} track ids -> {args.out}"
+        f"{track_ids} track id{'s' if track_ids != 1 else ''} -> {args.out}"
         + (f" (re-initialised {result.reinitialisations}x)" if result.reinitialisations else "")
         + (f"; {lost} frame{'s' if lost != 1 else ''} of the input could not be read (exit status 3)" if lost else "")
     )
