@@ -664,7 +664,11 @@ def report_removed_segments() -> None:
     killed node cannot remove its own) and say how many, if any."""
     removed = remove_dead_segments()
     if removed:
-        print(f"pipeline: removed {len(removed)} shared-memory segment(s) left by dead processes", flush=True)
+        print(
+            f"pipeline: removed {len(removed)} shared-memory segment(s) that killed DDS processes "
+            "(a restarted node, or an earlier run's) had left in /dev/shm",
+            flush=True,
+        )
 
 
 def main(argv: Sequence[str] | None = None) -> int:
