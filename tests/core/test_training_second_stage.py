@@ -14,6 +14,7 @@ from gldt_core.detect.second_stage import CROP_SIZE, SecondStage, encoded_iou
 from gldt_core.training.crops import SOURCES, CropSet, label_boxes
 from gldt_core.training.second_stage import (
     DEFAULTS,
+    CropClassifier,
     ResumeError,
     calibrate,
     evaluate,
@@ -22,6 +23,7 @@ from gldt_core.training.second_stage import (
     fit_classifier,
     load_config,
     load_resume,
+    model_signature,
     split_for_calibration,
 )
 
@@ -389,3 +391,47 @@ def test_a_bad_colour_augmentation_is_refused_in_one_line(tmp_path: Path, key: s
     assert not any(tmp_path.iterdir()), "nothing written"
     colour = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_colour.yaml")
     assert (colour["train"]["colour_jitter"], colour["train"]["grayscale_p"]) == (0.2, 0.2)
+
+
+def test_border_input_norm_sees_the_crop_against_its_sky_in_torch_and_in_onnx(tmp_path: Path) -> None:
+    import onnxruntime as ort
+
+    torch.manual_seed(0)
+    crops = toy_crops(8)
+    geometry = torch.from_numpy(crops.geometry)
+    plain = torch.from_numpy(crops.crops.astype(np.float32))
+    # Another day's sky: every channel of both frames shifted by its own offset, nothing clipped.
+    tinted = plain + torch.tensor([30.0, -20.0, 10.0, 30.0, -20.0, 10.0]).reshape(1, 6, 1, 1)
+    assert 0 <= float(tinted.min()) and float(tinted.max()) <= 255
+    border = CropClassifier([4, 4, 8, 8], 8, input_norm="border").eval()
+    raw = CropClassifier([4, 4, 8, 8], 8).eval()
+    with torch.no_grad():  # weights large enough that an untrained model's logits follow its input
+        for parameter in (*border.parameters(), *raw.parameters()):
+            parameter.normal_(0.0, 0.5)
+    with torch.no_grad():
+        np.testing.assert_allclose(border(tinted, geometry)[0], border(plain, geometry)[0], atol=1e-4)
+        assert float((raw(tinted, geometry)[0] - raw(plain, geometry)[0]).abs().max()) > 1e-3
+        # The object still counts: a darker square is another input.
+        darker = plain.clone()
+        darker[:, :, 28:36, 28:36] -= 15
+        assert float((border(darker, geometry)[0] - border(plain, geometry)[0]).abs().max()) > 1e-3
+    path = export_second_stage(border, tmp_path / "second_stage.onnx", {})
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    got = [session.run(["class_logits"], {"crops": c.numpy(), "geometry": crops.geometry})[0] for c in (plain, tinted)]
+    np.testing.assert_allclose(got[1], got[0], atol=1e-4)
+    # A border model's checkpoint is not resumed or exported under a config without the option.
+    config = json.loads(json.dumps(DEFAULTS))
+    bordered = json.loads(json.dumps(DEFAULTS))
+    bordered["model"]["input_norm"] = "border"
+    assert model_signature(bordered) != model_signature(config)
+    assert "input_norm" not in model_signature(config)["model"]  # the shipped checkpoint's signature
+    shipped_configs = Path(__file__).parents[2] / "src/gldt_core/configs/train"
+    assert load_config(shipped_configs / "second_stage_border.yaml")["model"]["input_norm"] == "border"
+
+
+def test_an_unknown_input_norm_is_refused_in_one_line(tmp_path: Path) -> None:
+    config = tiny_config()
+    config["model"]["input_norm"] = "sky"
+    with pytest.raises(ValueError, match=r"^model\.input_norm must be one of none, border, got 'sky'$"):
+        fit_classifier(config, toy_crops(), toy_crops(seed=1), tmp_path)
+    assert not any(tmp_path.iterdir()), "nothing written"

@@ -47,7 +47,10 @@ DEFAULTS: dict[str, Any] = {
     "out_dir": "runs/second_stage",
     # box_correction: a head that moves each candidate's box toward its object's annotated box
     # (opt-in: learnt from the training clips' annotation margins, which differ from clip to clip).
-    "model": {"channels": [16, 32, 64, 96], "hidden": 128, "box_correction": False},
+    # input_norm "border": each crop's channels less their mean over the crop's border ring (the sky
+    # around the object), so that the classifier sees the object against its background and not the
+    # background's colour, which differs by recording day and so by clip (opt-in; "none": 0-255 scaled).
+    "model": {"channels": [16, 32, 64, 96], "hidden": 128, "box_correction": False, "input_norm": "none"},
     "data": {
         "halmstad_root": None,
         "cache_dir": "/tmp/gldt-cache",
@@ -82,6 +85,13 @@ DEFAULTS: dict[str, Any] = {
 MIN_STEPS = 10
 
 
+#: The crop normalisations CropClassifier knows (``model.input_norm``).
+INPUT_NORMS = ("none", "border")
+
+#: Width in pixels of the border ring whose mean ``input_norm: border`` takes from each channel.
+BORDER_RING = 6
+
+
 def conv(cin: int, cout: int, stride: int) -> nn.Sequential:
     return nn.Sequential(nn.Conv2d(cin, cout, 3, stride, 1, bias=False), nn.BatchNorm2d(cout), nn.SiLU())
 
@@ -91,10 +101,16 @@ class CropClassifier(nn.Module):
     (:func:`~gldt_core.detect.second_stage.encode_boxes`) -> class logits ``(N, 4)``, box-quality
     logit ``(N, 1)`` (the predicted IoU of the box with its object's, as a logit) and, with
     ``box_correction``, the box correction ``(N, 4)`` (added to the geometry, it is the object's
-    annotated box; the quality is then the corrected box's)."""
+    annotated box; the quality is then the corrected box's). ``input_norm`` (:data:`INPUT_NORMS`)
+    says how the crops are scaled before the first convolution."""
 
-    def __init__(self, channels: list[int], hidden: int, box_correction: bool = False) -> None:
+    def __init__(
+        self, channels: list[int], hidden: int, box_correction: bool = False, input_norm: str = "none"
+    ) -> None:
         super().__init__()
+        if input_norm not in INPUT_NORMS:
+            raise ValueError(f"model.input_norm must be one of {', '.join(INPUT_NORMS)}, got {input_norm!r}")
+        self.input_norm = input_norm
         c0, c1, c2, c3 = channels
         self.features = nn.Sequential(
             conv(6, c0, 2),  # 32
@@ -117,8 +133,20 @@ class CropClassifier(nn.Module):
             nn.init.zeros_(last.weight)
             nn.init.zeros_(last.bias)
 
+    def normalise(self, crops: torch.Tensor) -> torch.Tensor:
+        """The crops as the first convolution sees them: 0-255 mapped to [-1, 1], or with
+        ``input_norm: border`` each channel less its mean over the crop's border ring, on the
+        same scale (part of the exported model, so the runtime feeds 0-255 crops either way)."""
+        if self.input_norm == "none":
+            return crops / 127.5 - 1.0
+        ring = BORDER_RING
+        inner = crops[:, :, ring:-ring, ring:-ring]
+        ring_sum = crops.sum(dim=(2, 3), keepdim=True) - inner.sum(dim=(2, 3), keepdim=True)
+        ring_pixels = crops.shape[2] * crops.shape[3] - inner.shape[2] * inner.shape[3]
+        return (crops - ring_sum / ring_pixels) / 127.5
+
     def forward(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        x = self.neck(self.features(crops / 127.5 - 1.0))
+        x = self.neck(self.features(self.normalise(crops)))
         with_box = torch.cat([x, geometry], dim=1)
         heads = (self.classes(x), self.quality(with_box))
         return heads if self.correction is None else (*heads, self.correction(with_box))
@@ -279,6 +307,8 @@ def model_signature(config: dict[str, Any]) -> dict[str, Any]:
     model = dict(config["model"])
     if not model.get("box_correction"):
         model.pop("box_correction", None)  # a model without it is the one from before the option
+    if model.get("input_norm", "none") == "none":
+        model.pop("input_norm", None)  # likewise
     return {"model": model, "crop_size": CROP_SIZE, "context": crop_context(config), "min_side": MIN_SIDE}
 
 
@@ -409,6 +439,7 @@ def train_second_stage(
     spec = CropSpec(**data["crops"])
     focal_gamma(config)  # checked before the crops are cut
     colour_augmentation(config)
+    CropClassifier(**config["model"])
     global_model = Path(data["global_model"] or DEFAULT_GLOBAL_MODEL)
     local_model = Path(data["local_model"] or DEFAULT_LOCAL_MODEL)
     fit_clips, calibration_clips = split_for_calibration(halmstad_split(root)["train"], int(data["calibration_period"]))
