@@ -7,11 +7,18 @@ from pathlib import Path
 
 import pytest
 
-from gldt_core.bench.seeds import format_summary, parse_variant, seed_figures, summarise
+from gldt_core.bench.seeds import clip_false_drones, format_summary, parse_variant, seed_figures, summarise
 from gldt_core.cli import main
 
 
-def report(ap_val: float, ap_val_b: float, fd_val: float, fd_val_b: float, accuracy: float | None = None) -> dict:
+def report(
+    ap_val: float,
+    ap_val_b: float,
+    fd_val: float,
+    fd_val_b: float,
+    accuracy: float | None = None,
+    by_clip: dict[str, int] | None = None,
+) -> dict:
     def row(ap: float) -> dict:
         return {"fused+2nd": {"ap50": ap, "precision_at_threshold": 0.9, "recall_at_threshold": ap - 0.1}}
 
@@ -21,6 +28,8 @@ def report(ap_val: float, ap_val_b: float, fd_val: float, fd_val_b: float, accur
     }
     if accuracy is not None:
         out["second_stage"] = {"path": "x.onnx", "calibration_clip_figures": {"accuracy": accuracy}}
+    if by_clip is not None:  # false drones of the fused row on the real-val bird/airplane clips
+        out["false_drones_by_clip"] = {"real-val": {"fused+2nd": by_clip, "local": {"V_BIRD_004": 9}}}
     return out
 
 
@@ -112,3 +121,32 @@ def test_the_command_reads_reports_or_their_folders_and_says_what_is_wrong(
     assert "bad.json: not a JSON report" in capsys.readouterr().err
     assert main(["bench", "seeds", "--variant", f"x={tmp_path / 'none.json'}"]) != 0
     assert "none.json: no such report" in capsys.readouterr().err
+
+
+def test_the_false_drones_are_shown_clip_by_clip_where_any_seed_had_one(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    seeds = {
+        "a0": {"V_AIRPLANE_049": 14, "V_AIRPLANE_019": 12, "V_BIRD_004": 0},
+        "a1": {"V_AIRPLANE_049": 15, "V_AIRPLANE_019": 10, "V_BIRD_004": 0},
+        "b0": {"V_AIRPLANE_049": 13, "V_AIRPLANE_019": 2, "V_BIRD_004": 0},
+    }
+    for name, by_clip in seeds.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "report.json").write_text(json.dumps(report(0.87, 0.93, 0.1, 0.1, by_clip=by_clip)))
+    assert clip_false_drones(report(0.87, 0.93, 0.1, 0.1, by_clip=seeds["a0"]), "local") == {"real-val V_BIRD_004": 9}
+    assert clip_false_drones(report(0.87, 0.93, 0.1, 0.1), "fused+2nd") == {}  # a report from before the list
+    out = tmp_path / "summary.json"
+    code = main(
+        [
+            "bench", "seeds", "--variant", f"shipped={tmp_path / 'a0'},{tmp_path / 'a1'}",
+            "--variant", f"border={tmp_path / 'b0'}", "--json", str(out),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out.split("false drones by bird/airplane clip")[1].splitlines()
+    line = next(row for row in printed if row.startswith("real-val V_AIRPLANE_019"))
+    assert "11.0 [10-12] n2" in line and "2.0 [2-2] n1" in line and "-9.0" in line and line.endswith("2.0")
+    assert not any("V_BIRD_004" in row for row in printed)  # no seed called a drone there
+    summary = json.loads(out.read_text())["false_drones_by_clip"]
+    assert summary["border"]["real-val V_AIRPLANE_049"]["mean"] == 13.0

@@ -10,7 +10,11 @@ them by variant, and prints for each variant the mean, lowest and highest over i
   report; absent in reports written before the report carried it),
 * the worst validation split's AP50 and false drones per frame on bird/airplane clips, for one
   row of the detection bench (``--row``, default ``fused+2nd``, the default GD frame), and
-* precision and recall at the operating threshold on each split.
+* precision and recall at the operating threshold on each split;
+
+and then, for the same row, how many false drones each bird/airplane clip gave over a seed's
+bench (every clip that gave one in any seed of any variant): whether a variant's fewer false
+drones are fewer everywhere or on one clip.
 
 The first variant is the peer: each other variant's mean is printed as a difference from it,
 beside the peer's own spread over its seeds (highest minus lowest), so a difference the seeds
@@ -111,6 +115,17 @@ def seed_figures(report: Any, row: str, source: str = "report") -> dict[str, flo
     return figures
 
 
+def clip_false_drones(report: dict[str, Any], row: str) -> dict[str, float]:
+    """``"<split> <clip>" -> false drones`` of ``row`` on each bird/airplane clip of the report
+    (empty for a report written before the bench listed them by clip)."""
+    by_clip = report.get("false_drones_by_clip") or {}
+    counts: dict[str, float] = {}
+    for split, rows in sorted(by_clip.items()):
+        for clip, count in sorted(((rows or {}).get(row) or {}).items()):
+            counts[f"{split} {clip}"] = float(count)
+    return counts
+
+
 def run_settings(report: dict[str, Any], row: str) -> tuple[Any, ...]:
     """What must be the same for two reports to be compared: the clips of each split, and the
     row's operating threshold."""
@@ -128,14 +143,16 @@ def summarise(seeds: list[dict[str, float]]) -> dict[str, dict[str, float]]:
     return out
 
 
-def format_summary(summaries: dict[str, dict[str, dict[str, float]]]) -> str:
+def format_summary(summaries: dict[str, dict[str, dict[str, float]]], title: str = "figure", decimals: int = 4) -> str:
     """One table: a line per figure, a column per variant (mean [lowest-highest] over its seeds);
     for each variant after the first, its mean's difference from the first's, and the first's
-    spread ('-' where the first has fewer than two seeds for that figure)."""
+    spread ('-' where the first has fewer than two seeds for that figure). ``title`` heads the
+    figures' column; means and differences carry ``decimals`` digits, the range one fewer."""
     names = list(summaries)
     peer = names[0]
     figures = sorted({figure for summary in summaries.values() for figure in summary})
-    header = f"{'figure':34s} " + " ".join(f"{name[:26]:>26s}" for name in names)
+    places = max(decimals - 1, 0)
+    header = f"{title:34s} " + " ".join(f"{name[:26]:>26s}" for name in names)
     header += "".join(f"  {name[:12] + ' - ' + peer[:12]:>27s}" for name in names[1:])
     if len(names) > 1:
         header += f"  {peer[:12] + ' spread':>19s}"
@@ -144,16 +161,18 @@ def format_summary(summaries: dict[str, dict[str, dict[str, float]]]) -> str:
         cells = []
         for name in names:
             entry = summaries[name].get(figure)
-            cells.append(
-                f"{entry['mean']:.4f} [{entry['min']:.3f}-{entry['max']:.3f}] n{int(entry['seeds'])}" if entry else "-"
-            )
+            if entry is None:
+                cells.append("-")
+                continue
+            low, high = f"{entry['min']:.{places}f}", f"{entry['max']:.{places}f}"
+            cells.append(f"{entry['mean']:.{decimals}f} [{low}-{high}] n{int(entry['seeds'])}")
         line = f"{figure:34s} " + " ".join(f"{cell:>26s}" for cell in cells)
         base = summaries[peer].get(figure)
         for name in names[1:]:
             other = summaries[name].get(figure)
-            line += f"  {other['mean'] - base['mean']:>+27.4f}" if other and base else f"  {'-':>27s}"
+            line += f"  {other['mean'] - base['mean']:>+27.{decimals}f}" if other and base else f"  {'-':>27s}"
         if len(names) > 1:
-            spread = f"{base['max'] - base['min']:.4f}" if base and base["seeds"] >= 2 else "-"
+            spread = f"{base['max'] - base['min']:.{decimals}f}" if base and base["seeds"] >= 2 else "-"
             line += f"  {spread:>19s}"
         lines.append(line)
     return "\n".join(lines)
@@ -170,23 +189,34 @@ def _read(path: Path) -> Any:
 
 def _run(args: argparse.Namespace) -> int:
     summaries: dict[str, dict[str, dict[str, float]]] = {}
+    by_clip: dict[str, dict[str, dict[str, float]]] = {}
     first: tuple[Path, tuple[Any, ...]] | None = None
     for text in args.variant:
         name, paths = parse_variant(text)
         if name in summaries:
             raise ValueError(f"--variant {name!r} given twice")
-        seeds = []
+        seeds, clip_counts = [], []
         for path in paths:
             report = _read(path)
             seeds.append(seed_figures(report, args.row, str(path)))
+            if counts := clip_false_drones(report, args.row):
+                clip_counts.append(counts)
             settings = run_settings(report, args.row)
             if first is None:
                 first = (path, settings)
             elif settings != first[1]:
                 raise ValueError(f"{path}: benched on other clips or at another threshold than {first[0]}")
         summaries[name] = summarise(seeds)
+        by_clip[name] = summarise(clip_counts)
     print(f"row {args.row}: mean [lowest-highest] nN over each variant's N seeds")
     print(format_summary(summaries))
+    # Only the clips where some seed of some variant called something a drone.
+    named = {clip for summary in by_clip.values() for clip, entry in summary.items() if entry["max"] > 0}
+    if named:
+        print(f"\nfalse drones by bird/airplane clip, row {args.row} (each seed's count over its bench's frames):")
+        kept = {name: {clip: by_clip[name][clip] for clip in named & set(by_clip[name])} for name in by_clip}
+        print(format_summary(kept, title="split clip", decimals=1))
     if args.json:
-        Path(args.json).write_text(json.dumps({"row": args.row, "variants": summaries}, indent=2))
+        out = {"row": args.row, "variants": summaries, "false_drones_by_clip": by_clip}
+        Path(args.json).write_text(json.dumps(out, indent=2))
     return 0
