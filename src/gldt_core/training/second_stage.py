@@ -49,7 +49,7 @@ DEFAULTS: dict[str, Any] = {
     # (opt-in: learnt from the training clips' annotation margins, which differ from clip to clip).
     # input_norm "border": each crop's channels less their mean over the crop's border ring (the sky
     # around the object), so that the classifier sees the object against its background and not the
-    # background's colour, which differs by recording day and so by clip (opt-in; "none": 0-255 scaled).
+    # background's colour, which differs by recording day and so by clip (opt-in; "none": 0-255 to [-1, 1]).
     "model": {"channels": [16, 32, 64, 96], "hidden": 128, "box_correction": False, "input_norm": "none"},
     "data": {
         "halmstad_root": None,
