@@ -33,6 +33,13 @@ def report(
     return out
 
 
+def write_reports(folder: Path, reports: dict[str, dict]) -> None:
+    """Each report as ``folder/<name>/report.json``, where ``gldt bench detection --out`` puts it."""
+    for name, content in reports.items():
+        (folder / name).mkdir()
+        (folder / name / "report.json").write_text(json.dumps(content))
+
+
 def test_a_seed_is_read_by_its_worst_split() -> None:
     figures = seed_figures(report(0.87, 0.93, 0.10, 0.12, 0.88), "fused+2nd")
     assert figures["worst split AP50"] == 0.87  # the synthetic row is not a validation split
@@ -95,13 +102,14 @@ def test_reports_that_lack_a_figure_or_differ_in_their_runs_are_refused(
 def test_the_command_reads_reports_or_their_folders_and_says_what_is_wrong(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    for name, values in {
-        "a0": (0.86, 0.93, 0.1, 0.06),
-        "a1": (0.87, 0.94, 0.13, 0.11),
-        "b0": (0.85, 0.93, 0.04, 0.03),
-    }.items():
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "report.json").write_text(json.dumps(report(*values)))
+    write_reports(
+        tmp_path,
+        {
+            "a0": report(0.86, 0.93, 0.1, 0.06),
+            "a1": report(0.87, 0.94, 0.13, 0.11),
+            "b0": report(0.85, 0.93, 0.04, 0.03),
+        },
+    )
     out = tmp_path / "summary.json"
     code = main(
         [
@@ -131,9 +139,7 @@ def test_the_false_drones_are_shown_clip_by_clip_where_any_seed_had_one(
         "a1": {"V_AIRPLANE_049": 15, "V_AIRPLANE_019": 10, "V_BIRD_004": 0},
         "b0": {"V_AIRPLANE_049": 13, "V_AIRPLANE_019": 2, "V_BIRD_004": 0},
     }
-    for name, by_clip in seeds.items():
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "report.json").write_text(json.dumps(report(0.87, 0.93, 0.1, 0.1, by_clip=by_clip)))
+    write_reports(tmp_path, {name: report(0.87, 0.93, 0.1, 0.1, by_clip=by_clip) for name, by_clip in seeds.items()})
     assert clip_false_drones(report(0.87, 0.93, 0.1, 0.1, by_clip=seeds["a0"]), "local") == {"real-val V_BIRD_004": 9}
     assert clip_false_drones(report(0.87, 0.93, 0.1, 0.1), "fused+2nd") == {}  # a report from before the list
     out = tmp_path / "summary.json"
