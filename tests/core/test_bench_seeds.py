@@ -7,7 +7,15 @@ from pathlib import Path
 
 import pytest
 
-from gldt_core.bench.seeds import clip_false_drones, format_summary, parse_variant, seed_figures, summarise
+from gldt_core.bench.seeds import (
+    clip_false_drones,
+    clip_false_track_rows,
+    end_to_end_figures,
+    format_summary,
+    parse_variant,
+    seed_figures,
+    summarise,
+)
 from gldt_core.cli import main
 
 
@@ -96,7 +104,7 @@ def test_reports_that_lack_a_figure_or_differ_in_their_runs_are_refused(
         main(["bench", "seeds", "--variant", f"a={tmp_path / 'one.json'}", "--variant", f"b={tmp_path / 'other.json'}"])
         == 2
     )
-    assert "other.json: benched on other clips or at another threshold than" in capsys.readouterr().err
+    assert "other.json: benched on other clips or at other settings than" in capsys.readouterr().err
 
 
 def test_the_command_reads_reports_or_their_folders_and_says_what_is_wrong(
@@ -156,3 +164,78 @@ def test_the_false_drones_are_shown_clip_by_clip_where_any_seed_had_one(
     assert not any("V_BIRD_004" in row for row in printed)  # no seed called a drone there
     summary = json.loads(out.read_text())["false_drones_by_clip"]
     assert summary["border"]["real-val V_AIRPLANE_049"]["mean"] == 13.0
+
+
+def ablation_report(split: str, idf1: float, false_rows: float, rows_by_clip: dict[str, int], clips: int = 2) -> dict:
+    """What ``gldt bench ablation --variants GD+LD+JPTrack --other-clips N --json`` writes for one split."""
+    row = {"variant": "GD+LD+JPTrack", "IDF1": idf1, "MOTA": idf1 - 10.0, "HOTA": idf1 - 20.0, "IDSW": 3}
+    return {
+        "oracle": False,
+        "variants": ["GD+LD+JPTrack"],
+        f"halmstad_{split}": [row],
+        f"clips_{split}": [f"V_DRONE_{k:03d}" for k in range(clips)],
+        f"false_drone_track_rows_per_frame_{split}": false_rows,
+        f"false_drone_track_rows_by_clip_{split}": rows_by_clip,
+        f"false_drone_tracks_{split}": [],
+        f"other_clips_{split}": ["V_AIRPLANE_022", "V_AIRPLANE_049", "V_BIRD_004"],
+    }
+
+
+def test_end_to_end_reports_give_the_shipped_systems_figures_per_split() -> None:
+    figures = end_to_end_figures(ablation_report("val_b", 92.0, 0.1, {"V_AIRPLANE_022": 287}))
+    assert figures == {
+        "MOTA val_b": 82.0,
+        "IDF1 val_b": 92.0,
+        "HOTA val_b": 72.0,
+        "IDSW val_b": 3.0,
+        "false drone track rows/frame val_b": 0.1,
+    }
+    assert clip_false_track_rows(ablation_report("val", 84.0, 0.1, {"V_AIRPLANE_049": 309})) == {
+        "val V_AIRPLANE_049": 309.0
+    }
+    without = ablation_report("val", 84.0, 0.1, {})
+    without["halmstad_val"][0]["variant"] = "GD+JPTrack"
+    with pytest.raises(ValueError, match="^e.json: no GD\\+LD\\+JPTrack row for val"):
+        end_to_end_figures(without, "e.json")
+
+
+def test_the_command_reads_end_to_end_reports_beside_detection_reports(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A variant lists its seeds' ablation reports of both splits (and a detection report): each
+    figure is summarised over the reports that give it, and reports are checked against the first
+    of their own kind and split, so a val and a val_b report do not clash."""
+    reports = {
+        "a0_val": ablation_report("val", 84.0, 0.14, {"V_AIRPLANE_049": 309, "V_BIRD_004": 0}),
+        "a2_val": ablation_report("val", 85.0, 0.10, {"V_AIRPLANE_049": 200}),
+        "a0_val_b": ablation_report("val_b", 92.0, 0.11, {"V_AIRPLANE_022": 287}),
+        "b0_val": ablation_report("val", 84.5, 0.06, {"V_AIRPLANE_049": 20, "V_BIRD_004": 56}),
+        "b0_val_b": ablation_report("val_b", 91.0, 0.07, {"V_AIRPLANE_022": 10}),
+    }
+    for name, content in reports.items():
+        (tmp_path / f"{name}.json").write_text(json.dumps(content))
+    write_reports(tmp_path, {"det": report(0.87, 0.93, 0.1, 0.1)})
+    path = {name: str(tmp_path / f"{name}.json") for name in reports}
+    shipped = f"{path['a0_val']},{path['a2_val']},{path['a0_val_b']},{tmp_path / 'det'}"
+    out = tmp_path / "summary.json"
+    code = main(
+        [
+            "bench", "seeds", "--variant", f"shipped={shipped}",
+            "--variant", f"bgrey={path['b0_val']},{path['b0_val_b']}", "--json", str(out),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    printed = capsys.readouterr().out
+    idf1 = next(row for row in printed.splitlines() if row.startswith("IDF1 val "))
+    assert "84.5000 [84.000-85.000] n2" in idf1 and "+0.0000" in idf1 and idf1.endswith("1.0000")
+    assert next(row for row in printed.splitlines() if row.startswith("worst split AP50")).split()[-3:-1] == ["-", "-"]
+    rows = printed.split("false drone track rows by bird/airplane clip")[1].splitlines()
+    bird = next(row for row in rows if row.startswith("val V_BIRD_004"))
+    assert "0.0 [0-0] n1" in bird and "56.0 [56-56] n1" in bird  # shown: one seed of one variant had rows there
+    summary = json.loads(out.read_text())
+    assert summary["variants"]["shipped"]["IDF1 val_b"]["seeds"] == 1
+    assert summary["false_drone_track_rows_by_clip"]["shipped"]["val V_AIRPLANE_049"]["mean"] == 254.5
+    other_clips = ablation_report("val", 84.0, 0.1, {"V_AIRPLANE_049": 1}, clips=3)
+    (tmp_path / "three.json").write_text(json.dumps(other_clips))
+    assert main(["bench", "seeds", "--variant", f"x={path['a0_val']},{tmp_path / 'three.json'}"]) != 0
+    assert "three.json: benched on other clips or at other settings than" in capsys.readouterr().err

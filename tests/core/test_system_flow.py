@@ -447,18 +447,23 @@ class ScriptedSequence:
         return (SimpleFrame(k, k / FPS, stamp_frame(k)) for k in range(self.frames))
 
 
-def test_ablation_runs_four_variants_on_shared_detectors():
-    from gldt_core.bench.ablation import VARIANTS, format_table, run_dataset
-
-    scene = Scene([[200, 300], [1500, 800]], [[4, 1], [-3, 0]])
-    frames = 80
-    gt = np.array(
+def scene_ground_truth(scene: Scene, frames: int) -> np.ndarray:
+    """MOT ground-truth rows of the scene's targets over its first ``frames`` frames."""
+    return np.array(
         [
             [k + 1, i + 1, b[0], b[1], b[2] - b[0], b[3] - b[1], 1, 1, 1, -1]
             for k in range(frames)
             for i, b in enumerate(scene.boxes(k))
         ]
     )
+
+
+def test_ablation_runs_four_variants_on_shared_detectors():
+    from gldt_core.bench.ablation import VARIANTS, format_table, run_dataset
+
+    scene = Scene([[200, 300], [1500, 800]], [[4, 1], [-3, 0]])
+    frames = 80
+    gt = scene_ground_truth(scene, frames)
 
     gd, ld = GroundTruthGlobal(scene), GroundTruthLocal(scene)
     config = SystemConfig(scheduler=SchedulerConfig(n_global=10, n_local=30))
@@ -489,6 +494,35 @@ def test_ablation_runs_four_variants_on_shared_detectors():
         for key in ("IDF1", "MOTA", "HOTA", "IDSW"):
             assert row["per_clip"]["doubles"][key] == pytest.approx(row[key])
     assert "per clip, worst IDF1 margin first: GD+LD+JPTrack vs GD+LD+ByteTrack" in table
+
+
+def test_ablation_runs_only_the_variants_asked_for_with_the_same_figures():
+    """``--variants GD+LD+JPTrack``: the shipped system alone, for its accuracy at a fraction of the
+    cost; its row is the one the four-variant run gives, and the table leaves out the comparisons
+    it has no peer for."""
+    from gldt_core.bench.ablation import GLDT, format_table, parse_variants, run_dataset
+
+    scene = Scene([[200, 300], [1500, 800]], [[4, 1], [-3, 0]])
+    frames = 60
+    gt = scene_ground_truth(scene, frames)
+    config = SystemConfig(scheduler=SchedulerConfig(n_global=10, n_local=30))
+    all_rows = run_dataset(
+        [ScriptedSequence("doubles", gt, frames)], config, (GroundTruthGlobal(scene), GroundTruthLocal(scene))
+    )
+    gd, ld = GroundTruthGlobal(scene), GroundTruthLocal(scene)
+    alone = run_dataset([ScriptedSequence("doubles", gt, frames)], config, (gd, ld), variants=parse_variants(GLDT))
+    assert [row["variant"] for row in alone] == [GLDT]
+    full = {row["variant"]: row for row in all_rows}[GLDT]
+    for key in ("IDSW", "IDF1", "MOTA", "MOTP", "HOTA", "gd_frames", "search_gd_frames", "back_to_gd", "FN", "FP"):
+        assert alone[0][key] == full[key], key
+    assert len(gd.pairs) == 20  # 60 frames of 10 GD + 30 LD: one system's GD frames only
+    table = format_table("doubles", alone)
+    assert "GD frames: 20, of which 10" in table and "speed x" not in table and "per clip" not in table
+    assert parse_variants(None) == ("GD+ByteTrack", "GD+LD+ByteTrack", "GD+JPTrack", "GD+LD+JPTrack")
+    assert parse_variants("GD+LD+JPTrack, GD+JPTrack") == ("GD+JPTrack", "GD+LD+JPTrack")  # the paper's order
+    for bad in ("GD+LD", ""):
+        with pytest.raises(ValueError, match="^--variants .*: expected labels among GD\\+ByteTrack"):
+            parse_variants(bad)
 
 
 def test_ablation_reads_each_row_again_at_a_loose_iou_too():

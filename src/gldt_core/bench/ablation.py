@@ -32,6 +32,21 @@ VARIANTS = (
     ("GD+LD+JPTrack", True, "jptrack"),
 )
 METRICS = ("IDSW", "IDF1", "MOTA", "MOTP", "HOTA")
+#: The GL-DT system as shipped, the row every comparison is about.
+GLDT = "GD+LD+JPTrack"
+
+
+def parse_variants(text: str | None) -> tuple[str, ...]:
+    """``--variants`` (labels of :data:`VARIANTS`, comma-separated) -> labels in the paper's order;
+    ``None`` -> all four. One clear error naming an unknown label."""
+    labels = [label for label, _, _ in VARIANTS]
+    if text is None:
+        return tuple(labels)
+    chosen = [item.strip() for item in text.split(",") if item.strip()]
+    unknown = [item for item in chosen if item not in labels]
+    if unknown or not chosen:
+        raise ValueError(f"--variants {text!r}: expected labels among {', '.join(labels)}")
+    return tuple(label for label in labels if label in chosen)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -73,6 +88,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="hand the GL-DT systems the ground truth instead of the detectors' boxes (each configured "
         "detector still runs, for its time): the schedule's GD share and speed-up with a perfect detector "
         "on this machine",
+    )
+    parser.add_argument(
+        "--variants",
+        metavar="LABEL[,LABEL]",
+        default=None,
+        help=f"run only these of the four rows (default all; e.g. {GLDT}, the shipped system alone, "
+        "for its accuracy at a quarter of the cost: the speed ratio needs GD+JPTrack beside it)",
     )
     parser.add_argument("--json", metavar="OUT.json", help="also write all numbers as JSON")
     parser.set_defaults(func=handle_ablation)
@@ -173,8 +195,10 @@ def run_dataset(
     detectors: tuple[Any, Any],
     progress: bool = False,
     oracle: bool = False,
+    variants: tuple[str, ...] | None = None,
 ) -> list[dict[str, Any]]:
-    """All four variants over ``sequences``; one dict per variant (metrics in %, FPS, breakdown).
+    """The four variants (or the labels in ``variants``) over ``sequences``; one dict per variant
+    (metrics in %, FPS, breakdown).
 
     ``oracle``: the detectors run as usual but the systems get each frame's ground truth in
     place of their boxes (:mod:`gldt_core.bench.oracle`).
@@ -200,7 +224,11 @@ def run_dataset(
             OracleGlobalDetector(global_detector, feed),
             OracleLocalDetector(local_detector, feed),
         )
-    runs = [_VariantRun(label, config.with_changes(local_enabled=on, tracker=name)) for label, on, name in VARIANTS]
+    runs = [
+        _VariantRun(label, config.with_changes(local_enabled=on, tracker=name))
+        for label, on, name in VARIANTS
+        if variants is None or label in variants
+    ]
     for sequence in sequences:
         drones_by_frame = _drone_centres_by_frame(sequence.gt)
         systems: list[GLDTSystem] = []
@@ -343,35 +371,39 @@ def format_table(title: str, rows: list[dict[str, Any]]) -> str:
         )
     lines.append("(ROIcov: share of ground-truth drones on LD frames whose centre lies inside an ROI)")
     by_name = {r["variant"]: r for r in rows}
-    ours, gd_only = by_name["GD+LD+JPTrack"], by_name["GD+JPTrack"]
-    loose = ours.get("at_loose_iou")
-    if loose is not None:
+    ours, gd_only = by_name.get(GLDT), by_name.get("GD+JPTrack")
+    if ours is not None:
+        loose = ours.get("at_loose_iou")
+        if loose is not None:
+            lines.append(
+                f"{GLDT} at IoU {loose['threshold']:g} (loose ground-truth boxes): MOTA {loose['MOTA']:.2f}, "
+                f"IDF1 {loose['IDF1']:.2f}, FN {loose['FN']}, FP {loose['FP']}; "
+                f"at 0.5: FN {ours['FN']}, FP {ours['FP']} "
+                f"(a box around the drone that misses the annotation's size counts as both)"
+            )
+        if gd_only is not None:
+            ratio = ours["fps"] / gd_only["fps"] if gd_only["fps"] else float("nan")
+            lines.append(
+                f"{GLDT} vs GD+JPTrack: MOTA {ours['MOTA'] - gd_only['MOTA']:+.2f}, "
+                f"speed x{ratio:.2f} (GL-DT schedule vs global detector on every frame, same run)"
+            )
         lines.append(
-            f"GD+LD+JPTrack at IoU {loose['threshold']:g} (loose ground-truth boxes): MOTA {loose['MOTA']:.2f}, "
-            f"IDF1 {loose['IDF1']:.2f}, FN {loose['FN']}, FP {loose['FP']}; at 0.5: FN {ours['FN']}, FP {ours['FP']} "
-            f"(a box around the drone that misses the annotation's size counts as both)"
+            f"{GLDT} GD frames: {ours['gd_frames']}, of which {ours['search_gd_frames']} before a sequence's "
+            f"first LD frame; back from LD to GD: "
+            + (", ".join(f"{count}x {reason}" for reason, count in sorted(ours["back_to_gd"].items())) or "never")
         )
-    ratio = ours["fps"] / gd_only["fps"] if gd_only["fps"] else float("nan")
-    lines.append(
-        f"GD+LD+JPTrack vs GD+JPTrack: MOTA {ours['MOTA'] - gd_only['MOTA']:+.2f}, "
-        f"speed x{ratio:.2f} (GL-DT schedule vs global detector on every frame, same run)"
-    )
-    lines.append(
-        f"GD+LD+JPTrack GD frames: {ours['gd_frames']}, of which {ours['search_gd_frames']} before a sequence's "
-        f"first LD frame; back from LD to GD: "
-        + (", ".join(f"{count}x {reason}" for reason, count in sorted(ours["back_to_gd"].items())) or "never")
-    )
-    undecoded = _ratio_without_decode(ours, gd_only)
-    if undecoded is not None:
-        lines.append(
-            f"without the decode stage (frames handed over decoded, as a camera driver publishing raw "
-            f"images does): speed x{undecoded:.2f}"
-        )
-    stages = ", ".join(f"{k} {v:.1f}" for k, v in ours["stage_ms"].items())
-    lines.append(f"GD+LD+JPTrack time per frame (ms): {stages}")
-    stages = ", ".join(f"{k} {v:.1f}" for k, v in gd_only["stage_ms"].items())
-    lines.append(f"GD+JPTrack    time per frame (ms): {stages}")
-    lines += per_clip_lines(by_name["GD+LD+JPTrack"], by_name["GD+LD+ByteTrack"])
+        undecoded = None if gd_only is None else _ratio_without_decode(ours, gd_only)
+        if undecoded is not None:
+            lines.append(
+                f"without the decode stage (frames handed over decoded, as a camera driver publishing raw "
+                f"images does): speed x{undecoded:.2f}"
+            )
+    for row in (ours, gd_only):
+        if row is not None:
+            stages = ", ".join(f"{k} {v:.1f}" for k, v in row["stage_ms"].items())
+            lines.append(f"{row['variant']:<13} time per frame (ms): {stages}")
+    if ours is not None and "GD+LD+ByteTrack" in by_name:
+        lines += per_clip_lines(ours, by_name["GD+LD+ByteTrack"])
     return "\n".join(lines)
 
 
@@ -488,14 +520,15 @@ def handle_ablation(args: argparse.Namespace) -> int:
     for name in ("scenes", "frames", "clips", "other_clips"):
         if getattr(args, name) < 0:
             raise ValueError(f"--{name} must be >= 0, got {getattr(args, name)}")
+    variants = parse_variants(args.variants)
     config = load_config(args.config)
     detectors = build_detectors(config.with_changes(local_enabled=True))
-    report: dict[str, Any] = {"oracle": bool(args.oracle)}
+    report: dict[str, Any] = {"oracle": bool(args.oracle), "variants": list(variants)}
     oracle_note = " (oracle: ground truth in place of the detectors' boxes, at their cost)" if args.oracle else ""
 
     if args.scenes:
         sequences = synthetic_sequences(args.scenes, args.frames)
-        rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle)
+        rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle, variants=variants)
         report["synthetic_1080p"] = rows
         print(format_table(f"synthetic 1080p test scenes: {len(sequences)} x {args.frames} frames{oracle_note}", rows))
     if args.clips:
@@ -506,8 +539,9 @@ def handle_ablation(args: argparse.Namespace) -> int:
             print(f"halmstad: skipped, {args.halmstad}/videos not found")
         else:
             sequences = halmstad_sequences(args.halmstad, args.clips, args.clip_frames, args.split)
-            rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle)
+            rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle, variants=variants)
             report[f"halmstad_{args.split}"] = rows
+            report[f"clips_{args.split}"] = [sequence.name for sequence in sequences]
             total = sum(len(s) for s in sequences)
             print(
                 format_table(
@@ -526,6 +560,7 @@ def handle_ablation(args: argparse.Namespace) -> int:
         report[f"false_drone_track_rows_per_frame_{args.split}"] = rate
         report[f"false_drone_track_rows_by_clip_{args.split}"] = by_clip
         report[f"false_drone_tracks_{args.split}"] = tracks
+        report[f"other_clips_{args.split}"] = [sequence.name for sequence in others]
         where = clips_most_first(by_clip)
         print(
             f"bird/airplane clips of {args.split} ({', '.join(s.name for s in others)}): GD+LD+JPTrack publishes "

@@ -16,6 +16,12 @@ and then, for the same row, how many false drones each bird/airplane clip gave o
 bench (every clip that gave one in any seed of any variant): whether a variant's fewer false
 drones are fewer everywhere or on one clip.
 
+It reads end-to-end reports the same way: the JSON of ``gldt bench ablation --json OUT.json``
+(one per seed and split, e.g. ``--scenes 0 --clips 15 --other-clips 99 --variants GD+LD+JPTrack``)
+gives the shipped system's MOTA, IDF1, HOTA and IDSW on the split's drone clips and its false
+drone track rows per frame on its bird/airplane clips, and those rows clip by clip. A variant may
+list both kinds of report; reports are compared with the first of their own kind and split.
+
 The first variant is the peer: each other variant's mean is printed as a difference from it,
 beside the peer's own spread over its seeds (highest minus lowest), so a difference the seeds
 alone would make is plain to see. Nothing is trained or run here.
@@ -28,6 +34,7 @@ import json
 from pathlib import Path
 from typing import Any
 
+from gldt_core.bench.ablation import GLDT
 from gldt_core.bench.detection import FUSED
 
 #: The detection bench's row read by default: AM-YOLO's and the tiled local model's calibrated
@@ -115,6 +122,48 @@ def seed_figures(report: Any, row: str, source: str = "report") -> dict[str, flo
     return figures
 
 
+#: What an end-to-end report gives of the GL-DT row on each split's drone clips.
+END_TO_END_METRICS = ("MOTA", "IDF1", "HOTA", "IDSW")
+_ABLATION_PREFIX = "halmstad_"
+_FALSE_ROWS_PREFIX = "false_drone_track_rows_per_frame_"
+
+
+def is_end_to_end(report: Any) -> bool:
+    """Whether ``report`` is a ``gldt bench ablation --json`` report with real clips in it."""
+    return isinstance(report, dict) and any(key.startswith((_ABLATION_PREFIX, _FALSE_ROWS_PREFIX)) for key in report)
+
+
+def end_to_end_figures(report: dict[str, Any], source: str = "report") -> dict[str, float]:
+    """The GL-DT row's figures of one seed's ablation report: ``"<metric> <split>"`` for each
+    split's drone clips, ``"false drone track rows/frame <split>"`` for its bird/airplane clips."""
+    figures: dict[str, float] = {}
+    for key, value in report.items():
+        if key.startswith(_ABLATION_PREFIX):
+            split = key.removeprefix(_ABLATION_PREFIX)
+            rows = (
+                {row.get("variant"): row for row in value if isinstance(row, dict)} if isinstance(value, list) else {}
+            )
+            if GLDT not in rows:
+                raise ValueError(f"{source}: no {GLDT} row for {split} (run the ablation with it)")
+            for metric in END_TO_END_METRICS:
+                figures[f"{metric} {split}"] = _number(rows[GLDT], metric, source, f"{split} {GLDT}")
+        elif key.startswith(_FALSE_ROWS_PREFIX):
+            split = key.removeprefix(_FALSE_ROWS_PREFIX)
+            figures[f"false drone track rows/frame {split}"] = _number(report, key, source, "the report")
+    return figures
+
+
+def clip_false_track_rows(report: dict[str, Any]) -> dict[str, float]:
+    """``"<split> <clip>" -> false drone track rows`` of an ablation report's bird/airplane clips."""
+    prefix = "false_drone_track_rows_by_clip_"
+    counts: dict[str, float] = {}
+    for key, rows in sorted(report.items()):
+        if key.startswith(prefix):
+            split = key.removeprefix(prefix)
+            counts.update({f"{split} {clip}": float(count) for clip, count in sorted((rows or {}).items())})
+    return counts
+
+
 def clip_false_drones(report: dict[str, Any], row: str) -> dict[str, float]:
     """``"<split> <clip>" -> false drones`` of ``row`` on each bird/airplane clip of the report
     (empty for a report written before the bench listed them by clip)."""
@@ -128,9 +177,27 @@ def clip_false_drones(report: dict[str, Any], row: str) -> dict[str, float]:
 
 def run_settings(report: dict[str, Any], row: str) -> tuple[Any, ...]:
     """What must be the same for two reports to be compared: the clips of each split, and the
-    row's operating threshold."""
+    row's operating threshold (a detection report) or the variants run (an ablation report)."""
+    if is_end_to_end(report):
+        clips = tuple(
+            sorted((key, tuple(value)) for key, value in report.items() if key.startswith(("clips_", "other_clips_")))
+        )
+        return clips, bool(report.get("oracle"))
     clips = tuple(sorted((key, tuple(value)) for key, value in report.items() if key.endswith("_clips")))
     return clips, (report.get("operating_thresholds") or {}).get(row)
+
+
+def report_scope(report: dict[str, Any]) -> str:
+    """Which reports compare with each other: detection reports, or ablation reports of one split."""
+    if not is_end_to_end(report):
+        return "gldt bench detection"
+    splits = sorted(
+        key.removeprefix(prefix)
+        for key in report
+        for prefix in (_ABLATION_PREFIX, _FALSE_ROWS_PREFIX)
+        if key.startswith(prefix)
+    )
+    return "gldt bench ablation on " + ", ".join(dict.fromkeys(splits))
 
 
 def summarise(seeds: list[dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -182,7 +249,10 @@ def _read(path: Path) -> Any:
     try:
         return json.loads(path.read_text())
     except FileNotFoundError:
-        raise ValueError(f"{path}: no such report (gldt bench detection --out DIR writes DIR/report.json)") from None
+        raise ValueError(
+            f"{path}: no such report (gldt bench detection --out DIR writes DIR/report.json, "
+            "gldt bench ablation --json OUT.json an end-to-end one)"
+        ) from None
     except json.JSONDecodeError as error:
         raise ValueError(f"{path}: not a JSON report ({error.msg}, line {error.lineno})") from None
 
@@ -190,33 +260,52 @@ def _read(path: Path) -> Any:
 def _run(args: argparse.Namespace) -> int:
     summaries: dict[str, dict[str, dict[str, float]]] = {}
     by_clip: dict[str, dict[str, dict[str, float]]] = {}
-    first: tuple[Path, tuple[Any, ...]] | None = None
+    track_rows_by_clip: dict[str, dict[str, dict[str, float]]] = {}
+    first: dict[str, tuple[Path, tuple[Any, ...]]] = {}
     for text in args.variant:
         name, paths = parse_variant(text)
         if name in summaries:
             raise ValueError(f"--variant {name!r} given twice")
-        seeds, clip_counts = [], []
+        seeds, clip_counts, clip_rows = [], [], []
         for path in paths:
             report = _read(path)
-            seeds.append(seed_figures(report, args.row, str(path)))
-            if counts := clip_false_drones(report, args.row):
-                clip_counts.append(counts)
-            settings = run_settings(report, args.row)
-            if first is None:
-                first = (path, settings)
-            elif settings != first[1]:
-                raise ValueError(f"{path}: benched on other clips or at another threshold than {first[0]}")
+            if is_end_to_end(report):
+                seeds.append(end_to_end_figures(report, str(path)))
+                if rows := clip_false_track_rows(report):
+                    clip_rows.append(rows)
+            else:
+                seeds.append(seed_figures(report, args.row, str(path)))
+                if counts := clip_false_drones(report, args.row):
+                    clip_counts.append(counts)
+            scope, settings = report_scope(report), run_settings(report, args.row)
+            if scope not in first:
+                first[scope] = (path, settings)
+            elif settings != first[scope][1]:
+                raise ValueError(
+                    f"{path}: benched on other clips or at other settings than {first[scope][0]} ({scope})"
+                )
         summaries[name] = summarise(seeds)
         by_clip[name] = summarise(clip_counts)
-    print(f"row {args.row}: mean [lowest-highest] nN over each variant's N seeds")
+        track_rows_by_clip[name] = summarise(clip_rows)
+    rows_read = f"row {args.row} (detection reports), {GLDT} (ablation reports)"
+    print(f"{rows_read}: mean [lowest-highest] nN over each variant's N seeds")
     print(format_summary(summaries))
-    # Only the clips where some seed of some variant called something a drone.
-    named = {clip for summary in by_clip.values() for clip, entry in summary.items() if entry["max"] > 0}
-    if named:
-        print(f"\nfalse drones by bird/airplane clip, row {args.row} (each seed's count over its bench's frames):")
-        kept = {name: {clip: by_clip[name][clip] for clip in named & set(by_clip[name])} for name in by_clip}
-        print(format_summary(kept, title="split clip", decimals=1))
+    for table, what in (
+        (by_clip, f"false drones by bird/airplane clip, row {args.row} (each seed's count over its bench's frames)"),
+        (track_rows_by_clip, f"false drone track rows by bird/airplane clip, {GLDT} (each seed's rows over the clip)"),
+    ):
+        # Only the clips where some seed of some variant called something a drone.
+        named = {clip for summary in table.values() for clip, entry in summary.items() if entry["max"] > 0}
+        if named:
+            print(f"\n{what}:")
+            kept = {name: {clip: table[name][clip] for clip in named & set(table[name])} for name in table}
+            print(format_summary(kept, title="split clip", decimals=1))
     if args.json:
-        out = {"row": args.row, "variants": summaries, "false_drones_by_clip": by_clip}
+        out = {
+            "row": args.row,
+            "variants": summaries,
+            "false_drones_by_clip": by_clip,
+            "false_drone_track_rows_by_clip": track_rows_by_clip,
+        }
         Path(args.json).write_text(json.dumps(out, indent=2))
     return 0
