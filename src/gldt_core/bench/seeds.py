@@ -17,7 +17,7 @@ bench (every clip that gave one in any seed of any variant): whether a variant's
 drones are fewer everywhere or on one clip.
 
 It reads end-to-end reports the same way: the JSON of ``gldt bench ablation --json OUT.json``
-(one per seed and split, e.g. ``--scenes 0 --clips 15 --other-clips 99 --variants GD+LD+JPTrack``)
+(one per seed and split, e.g. ``--scenes 0 --clips 99 --other-clips 99 --variants GD+LD+JPTrack``)
 gives the shipped system's MOTA, IDF1, HOTA and IDSW on the split's drone clips and its false
 drone track rows per frame on its bird/airplane clips, and those rows clip by clip. A variant may
 list both kinds of report; reports are compared with the first of their own kind and split.
@@ -177,7 +177,8 @@ def clip_false_drones(report: dict[str, Any], row: str) -> dict[str, float]:
 
 def run_settings(report: dict[str, Any], row: str) -> tuple[Any, ...]:
     """What must be the same for two reports to be compared: the clips of each split, and the
-    row's operating threshold (a detection report) or the variants run (an ablation report)."""
+    row's operating threshold (a detection report), or whether the ground truth stood in for the
+    detectors' boxes (an ablation report)."""
     if is_end_to_end(report):
         clips = tuple(
             sorted((key, tuple(value)) for key, value in report.items() if key.startswith(("clips_", "other_clips_")))
