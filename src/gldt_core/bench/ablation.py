@@ -34,6 +34,15 @@ VARIANTS = (
 METRICS = ("IDSW", "IDF1", "MOTA", "MOTP", "HOTA")
 #: The GL-DT system as shipped, the row every comparison is about.
 GLDT = "GD+LD+JPTrack"
+#: Keys of the ``--json`` report that carry a split's name after them (``gldt bench seeds`` reads
+#: them): the rows on its drone clips and which clips; what GD+LD+JPTrack published as drones on
+#: its bird/airplane clips (per frame, by clip, track by track) and which clips.
+ROWS_KEY = "halmstad_"
+CLIPS_KEY = "clips_"
+FALSE_ROWS_KEY = "false_drone_track_rows_per_frame_"
+FALSE_ROWS_BY_CLIP_KEY = "false_drone_track_rows_by_clip_"
+FALSE_TRACKS_KEY = "false_drone_tracks_"
+OTHER_CLIPS_KEY = "other_clips_"
 
 
 def parse_variants(text: str | None) -> tuple[str, ...]:
@@ -540,8 +549,8 @@ def handle_ablation(args: argparse.Namespace) -> int:
         else:
             sequences = halmstad_sequences(args.halmstad, args.clips, args.clip_frames, args.split)
             rows = run_dataset(sequences, config, detectors, progress=True, oracle=args.oracle, variants=variants)
-            report[f"halmstad_{args.split}"] = rows
-            report[f"clips_{args.split}"] = [sequence.name for sequence in sequences]
+            report[ROWS_KEY + args.split] = rows
+            report[CLIPS_KEY + args.split] = [sequence.name for sequence in sequences]
             total = sum(len(s) for s in sequences)
             print(
                 format_table(
@@ -557,10 +566,10 @@ def handle_ablation(args: argparse.Namespace) -> int:
         others = halmstad_sequences(root, args.other_clips, args.clip_frames, args.split, category="other")
         by_clip, frames, tracks = false_drone_tracks(others, config, detectors)
         rate = sum(by_clip.values()) / frames if frames else float("nan")
-        report[f"false_drone_track_rows_per_frame_{args.split}"] = rate
-        report[f"false_drone_track_rows_by_clip_{args.split}"] = by_clip
-        report[f"false_drone_tracks_{args.split}"] = tracks
-        report[f"other_clips_{args.split}"] = [sequence.name for sequence in others]
+        report[FALSE_ROWS_KEY + args.split] = rate
+        report[FALSE_ROWS_BY_CLIP_KEY + args.split] = by_clip
+        report[FALSE_TRACKS_KEY + args.split] = tracks
+        report[OTHER_CLIPS_KEY + args.split] = [sequence.name for sequence in others]
         where = clips_most_first(by_clip)
         print(
             f"bird/airplane clips of {args.split} ({', '.join(s.name for s in others)}): GD+LD+JPTrack publishes "

@@ -34,7 +34,14 @@ import json
 from pathlib import Path
 from typing import Any
 
-from gldt_core.bench.ablation import GLDT
+from gldt_core.bench.ablation import (
+    CLIPS_KEY,
+    FALSE_ROWS_BY_CLIP_KEY,
+    FALSE_ROWS_KEY,
+    GLDT,
+    OTHER_CLIPS_KEY,
+    ROWS_KEY,
+)
 from gldt_core.bench.detection import FUSED
 
 #: The detection bench's row read by default: AM-YOLO's and the tiled local model's calibrated
@@ -124,13 +131,11 @@ def seed_figures(report: Any, row: str, source: str = "report") -> dict[str, flo
 
 #: What an end-to-end report gives of the GL-DT row on each split's drone clips.
 END_TO_END_METRICS = ("MOTA", "IDF1", "HOTA", "IDSW")
-_ABLATION_PREFIX = "halmstad_"
-_FALSE_ROWS_PREFIX = "false_drone_track_rows_per_frame_"
 
 
 def is_end_to_end(report: Any) -> bool:
     """Whether ``report`` is a ``gldt bench ablation --json`` report with real clips in it."""
-    return isinstance(report, dict) and any(key.startswith((_ABLATION_PREFIX, _FALSE_ROWS_PREFIX)) for key in report)
+    return isinstance(report, dict) and any(key.startswith((ROWS_KEY, FALSE_ROWS_KEY)) for key in report)
 
 
 def end_to_end_figures(report: dict[str, Any], source: str = "report") -> dict[str, float]:
@@ -138,28 +143,26 @@ def end_to_end_figures(report: dict[str, Any], source: str = "report") -> dict[s
     split's drone clips, ``"false drone track rows/frame <split>"`` for its bird/airplane clips."""
     figures: dict[str, float] = {}
     for key, value in report.items():
-        if key.startswith(_ABLATION_PREFIX):
-            split = key.removeprefix(_ABLATION_PREFIX)
-            rows = (
-                {row.get("variant"): row for row in value if isinstance(row, dict)} if isinstance(value, list) else {}
-            )
+        if key.startswith(ROWS_KEY):
+            split = key.removeprefix(ROWS_KEY)
+            listed = value if isinstance(value, list) else []
+            rows = {row.get("variant"): row for row in listed if isinstance(row, dict)}
             if GLDT not in rows:
                 raise ValueError(f"{source}: no {GLDT} row for {split} (run the ablation with it)")
             for metric in END_TO_END_METRICS:
                 figures[f"{metric} {split}"] = _number(rows[GLDT], metric, source, f"{split} {GLDT}")
-        elif key.startswith(_FALSE_ROWS_PREFIX):
-            split = key.removeprefix(_FALSE_ROWS_PREFIX)
+        elif key.startswith(FALSE_ROWS_KEY):
+            split = key.removeprefix(FALSE_ROWS_KEY)
             figures[f"false drone track rows/frame {split}"] = _number(report, key, source, "the report")
     return figures
 
 
 def clip_false_track_rows(report: dict[str, Any]) -> dict[str, float]:
     """``"<split> <clip>" -> false drone track rows`` of an ablation report's bird/airplane clips."""
-    prefix = "false_drone_track_rows_by_clip_"
     counts: dict[str, float] = {}
     for key, rows in sorted(report.items()):
-        if key.startswith(prefix):
-            split = key.removeprefix(prefix)
+        if key.startswith(FALSE_ROWS_BY_CLIP_KEY):
+            split = key.removeprefix(FALSE_ROWS_BY_CLIP_KEY)
             counts.update({f"{split} {clip}": float(count) for clip, count in sorted((rows or {}).items())})
     return counts
 
@@ -181,7 +184,7 @@ def run_settings(report: dict[str, Any], row: str) -> tuple[Any, ...]:
     detectors' boxes (an ablation report)."""
     if is_end_to_end(report):
         clips = tuple(
-            sorted((key, tuple(value)) for key, value in report.items() if key.startswith(("clips_", "other_clips_")))
+            sorted((key, tuple(value)) for key, value in report.items() if key.startswith((CLIPS_KEY, OTHER_CLIPS_KEY)))
         )
         return clips, bool(report.get("oracle"))
     clips = tuple(sorted((key, tuple(value)) for key, value in report.items() if key.endswith("_clips")))
@@ -193,10 +196,7 @@ def report_scope(report: dict[str, Any]) -> str:
     if not is_end_to_end(report):
         return "gldt bench detection"
     splits = sorted(
-        key.removeprefix(prefix)
-        for key in report
-        for prefix in (_ABLATION_PREFIX, _FALSE_ROWS_PREFIX)
-        if key.startswith(prefix)
+        key.removeprefix(prefix) for key in report for prefix in (ROWS_KEY, FALSE_ROWS_KEY) if key.startswith(prefix)
     )
     return "gldt bench ablation on " + ", ".join(dict.fromkeys(splits))
 
