@@ -127,6 +127,74 @@ def test_a_frame_letterboxed_below_the_tiles_scale_keeps_the_global_boxes(fused_
     )
 
 
+def test_a_pair_whose_tile_pass_is_not_wanted_keeps_the_global_boxes_at_the_threshold(fused_detector: object) -> None:
+    """A live pair too late for its tile pass (``tiles_wanted`` says no) is answered with
+    AM-YOLO's rows alone, cut at the threshold as without tile fusion; asked once AM-YOLO's
+    boxes are in, and never with tiles off."""
+    from gldt_core.detect import GlobalDetector
+
+    alone = GlobalDetector(score_threshold=0.1, num_threads=1, classes=(1,))
+    asked = []
+
+    def late() -> bool:
+        asked.append(True)
+        return False
+
+    differs = 0
+    for previous, current in real_pairs(16):
+        previous_input, _ = fused_detector.prepare(previous)  # type: ignore[attr-defined]
+        current_input, mapping = fused_detector.prepare(current)  # type: ignore[attr-defined]
+        height, width = current.shape[:2]
+        rows, _ = fused_detector.detect_prepared(  # type: ignore[attr-defined]
+            previous_input, current_input, mapping, width, height, tiles_wanted=late
+        )
+        np.testing.assert_allclose(rows, alone.detect(previous, current), atol=1e-4)
+        fused, _ = fused_detector.detect_prepared(  # type: ignore[attr-defined]
+            previous_input, current_input, mapping, width, height, tiles_wanted=lambda: True
+        )
+        differs += int(len(fused) != len(rows) or not np.allclose(fused, rows, atol=1e-4))
+    assert len(asked) == 3
+    assert differs >= 1, "with the tile pass the rows change on some of these frames"
+
+
+def test_the_tile_pass_budget_runs_a_pass_only_where_its_expected_time_still_fits() -> None:
+    from gldt_core.detect.fusion import TilePassBudget
+
+    budget = TilePassBudget(0.065)
+    assert budget.wanted(0.200), "the first pair always runs it: nothing is known of its time yet"
+    budget.record(0.020)
+    assert budget.wanted(0.045) and not budget.wanted(0.046)
+    assert budget.skipped == 1
+    budget.record(0.900)  # one slow pass among fast ones does not move the median far
+    budget.record(0.020)
+    assert budget.expected_s() == pytest.approx(0.020)
+    assert budget.wanted(0.040)
+
+
+def test_a_budget_that_skipped_many_pairs_in_a_row_measures_the_pass_again() -> None:
+    from gldt_core.detect.fusion import TILE_PASS_REMEASURE, TilePassBudget
+
+    budget = TilePassBudget(0.065)
+    budget.wanted(0.0)
+    budget.record(0.080)  # longer than the whole budget: every pair would skip it for good
+    assert not any(budget.wanted(0.0) for _ in range(TILE_PASS_REMEASURE))
+    assert budget.wanted(0.0), "the machine may be faster now: one pass is run to find out"
+    assert not budget.wanted(0.0)
+    assert budget.skipped == TILE_PASS_REMEASURE + 1
+
+
+def test_a_zero_budget_always_fuses_and_a_negative_one_is_refused() -> None:
+    from gldt_core.detect.fusion import TilePassBudget
+
+    budget = TilePassBudget(0.0)
+    budget.record(1.0)
+    assert all(budget.wanted(5.0) for _ in range(50)) and budget.skipped == 0
+    with pytest.raises(ValueError, match="tile pass budget"):
+        TilePassBudget(-0.01)
+    with pytest.raises(ValueError, match="tile pass budget"):
+        TilePassBudget(float("nan"))
+
+
 def test_a_tile_detector_that_cuts_above_half_the_threshold_is_refused() -> None:
     from gldt_core.detect import DetectorConfigError, GlobalDetector, LocalDetector
 

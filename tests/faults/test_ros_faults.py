@@ -42,9 +42,10 @@ class InProcessGraph:
         rclpy.init()
         # The buffer reads one camera input (``image_transport``); the probe publishes both kinds.
         # Every frame waits for its detections (as in lockstep): the tests ask which detector
-        # answered, and a cold model's first runs here (no warm-up frame) can outlast the deadline.
+        # answered, and a cold model's first runs here (no warm-up frame) can outlast the deadline;
+        # every GD pair is fused, as offline.
         args = ["--ros-args", "-p", "camera_qos:=reliable", "-p", f"image_transport:={transport}"]
-        args += ["-p", "answer_deadline:=0.0"]
+        args += ["-p", "answer_deadline:=0.0", "-p", "tile_budget:=0.0"]
         by_name = {name: importlib.import_module(module).create_node(cli_args=args) for name, module in NODES.items()}
         self.nodes = list(by_name.values())
         self.buffer, self.tracker = by_name["frame_pair_buffer"], by_name["jptrack_tracker"]

@@ -13,8 +13,12 @@ import pytest
 rclpy = pytest.importorskip("rclpy", reason="rclpy comes with the ROS wheels that `make test` installs")
 
 from rclpy.context import Context  # noqa: E402
+from rclpy.parameter import Parameter  # noqa: E402
 
 from support import REAL_BAG  # noqa: E402
+
+#: Every pair fused whatever its timing, as in a lockstep replay (``tile_budget``).
+ALWAYS_FUSE = [Parameter("tile_budget", value=0.0)]
 
 
 def bag_pairs(count: int) -> tuple[list, int, int, Callable[..., Any]]:
@@ -72,7 +76,7 @@ def test_pairs_in_a_gd_stretch_reuse_features_and_others_recompute_them(monkeypa
     context = Context()
     rclpy.init(context=context)
     try:
-        node = GlobalDetectorNode(context=context)
+        node = GlobalDetectorNode(context=context, parameter_overrides=ALWAYS_FUSE)
         reuse = node.detector.feature_reuse
         assert reuse is not None, "the shipped AM-YOLO comes with its split pair"
         runs: list[int] = []
@@ -142,7 +146,7 @@ def test_a_pair_sent_without_its_previous_frame_uses_the_one_held_or_else_the_fr
     context = Context()
     rclpy.init(context=context)
     try:
-        node = GlobalDetectorNode(context=context)
+        node = GlobalDetectorNode(context=context, parameter_overrides=ALWAYS_FUSE)
         published: list = []
         warnings: list[str] = []
         node.warn_throttled = lambda key, text: warnings.append(text)  # type: ignore[method-assign]
@@ -198,8 +202,6 @@ def test_the_default_node_publishes_the_offline_systems_fused_rows() -> None:
     """Tile fusion is on by default on the node (``tile_fusion``) and offline
     (``detector.tile_fusion``), and both fuse the same rows: the node gets the letterboxed pair,
     and a 640x512 frame is its own network input. ``tile_fusion:=false`` leaves AM-YOLO alone."""
-    from rclpy.parameter import Parameter
-
     from gldt_core.system.config import load_config
     from gldt_core.system.gldt_system import build_detectors
     from gldt_ros.nodes.global_detector import GlobalDetectorNode
@@ -211,7 +213,7 @@ def test_the_default_node_publishes_the_offline_systems_fused_rows() -> None:
     context = Context()
     rclpy.init(context=context)
     try:
-        node = GlobalDetectorNode(context=context)
+        node = GlobalDetectorNode(context=context, parameter_overrides=ALWAYS_FUSE)
         assert node.detector.tile_detector is not None
         for previous, current in [(0, 1), (1, 2), (2, 3)]:
             message = node.detect(pair(previous, current))
@@ -226,3 +228,43 @@ def test_the_default_node_publishes_the_offline_systems_fused_rows() -> None:
         alone.destroy_node()
     finally:
         rclpy.shutdown(context=context)
+
+
+def test_a_pair_too_late_for_its_tile_pass_is_answered_with_am_yolos_boxes_alone() -> None:
+    """Live (``tile_budget`` > 0), a pair whose AM-YOLO pass ends too late for the tile pass to fit
+    is published with AM-YOLO's boxes alone, as ``tile_fusion:=false`` would, and counted; the
+    first pair always runs the pass (its time is not known yet)."""
+    from gldt_ros.nodes.global_detector import TILES_SKIPPED, GlobalDetectorNode
+
+    _, _, _, pair = bag_pairs(4)
+    context = Context()
+    rclpy.init(context=context)
+    try:
+        node = GlobalDetectorNode(context=context, parameter_overrides=[Parameter("tile_budget", value=1e-6)])
+        fused = GlobalDetectorNode(context=context, parameter_overrides=ALWAYS_FUSE)
+        alone = GlobalDetectorNode(context=context, parameter_overrides=[Parameter("tile_fusion", value=False)])
+
+        def scores(message: Any) -> list[float]:
+            return [round(d.score, 4) for d in message.detections]
+
+        first = node.detect(pair(0, 1))
+        assert scores(first) == scores(fused.detect(pair(0, 1))) and node.events[TILES_SKIPPED] == 0
+        for previous, current in [(1, 2), (2, 3)]:
+            late = node.detect(pair(previous, current))
+            assert scores(late) == scores(alone.detect(pair(previous, current)))
+        assert node.events[TILES_SKIPPED] == 2 == node.tile_budget.skipped  # type: ignore[union-attr]
+        assert scores(first) != scores(alone.detect(pair(0, 1))), "the tile pass changes this pair's boxes"
+        for each in (node, fused, alone):
+            each.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def test_a_lockstep_replay_fuses_every_pair_and_a_paced_one_keeps_the_budget() -> None:
+    """A lockstep replay must equal the offline run, so no pair's tile pass may depend on timing."""
+    from gldt_core.paths import REPO_ROOT
+    from gldt_ros.launcher.pipeline import node_ros_args, parse_args
+
+    bag = str(REPO_ROOT / "bags" / "halmstad_v_drone_001")
+    assert "tile_budget:=0.0" in node_ros_args("global_detector", parse_args(["--bag", bag, "--lockstep"]))
+    assert "tile_budget:=0.0" not in node_ros_args("global_detector", parse_args(["--bag", bag, "--rate", "1"]))

@@ -14,11 +14,13 @@ sizes, as its annotations do (:data:`gldt_core.eval.halmstad_split.LOOSE_IOU`).
 :func:`fuse_with_tiles` is the GD frame's fusion (``detector.tile_fusion``): AM-YOLO's boxes with
 the local model's over :data:`TILE_SIDE` tiles of the same letterboxed frame. It runs inside
 :meth:`gldt_core.detect.GlobalDetector.detect_prepared`, so the offline system and the
-``global_detector`` node fuse the same rows.
+``global_detector`` node fuse the same rows. Live, the node may skip the tile pass of a pair that
+is already late (:class:`TilePassBudget`), so that its detections reach the tracker by its deadline.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -142,3 +144,53 @@ def build_tile_detector(local_model: str | None, global_kwargs: dict[str, Any]) 
         threshold = default_score_threshold(True)
     kwargs = {key: value for key, value in global_kwargs.items() if key not in ("model_path", "feature_reuse")}
     return LocalDetector(model_path=local_model, **{**kwargs, "score_threshold": threshold / 2})
+
+
+#: Tile passes whose median is the expected time of the next (:class:`TilePassBudget`).
+TILE_PASS_HISTORY = 9
+#: Pairs in a row whose tile pass a :class:`TilePassBudget` skips before it runs one anyway: the
+#: expected time is only learnt from passes run, and the machine may have become faster.
+TILE_PASS_REMEASURE = 30
+
+
+class TilePassBudget:
+    """Whether a live GD pair still has time for its tile pass (``global_detector``'s ``tile_budget``).
+
+    A pair's detections are due ``budget_s`` after it arrived. Once AM-YOLO's boxes are in,
+    ``elapsed_s`` after its arrival, the tile pass runs only if its expected time (the median of
+    the last :data:`TILE_PASS_HISTORY` passes) still fits; the first pair, and one after
+    :data:`TILE_PASS_REMEASURE` skipped in a row, always run it. ``budget_s`` 0 runs every pass
+    (a lockstep replay, which must equal the offline run).
+    """
+
+    def __init__(self, budget_s: float) -> None:
+        if not budget_s >= 0.0:
+            raise ValueError(f"a tile pass budget must be >= 0 s, got {budget_s}")
+        self.budget_s = float(budget_s)
+        self._passes: deque[float] = deque(maxlen=TILE_PASS_HISTORY)
+        self._skipped_in_a_row = 0
+        self.skipped = 0  # pairs whose tile pass was skipped, in all
+
+    def expected_s(self) -> float | None:
+        """The expected time of the next tile pass [s]; None before the first."""
+        return float(np.median(self._passes)) if self._passes else None
+
+    def wanted(self, elapsed_s: float) -> bool:
+        """Whether a pair whose AM-YOLO pass ended ``elapsed_s`` after its arrival gets its tile
+        pass (a skip is counted)."""
+        expected = self.expected_s()
+        if (
+            self.budget_s == 0.0
+            or expected is None
+            or self._skipped_in_a_row >= TILE_PASS_REMEASURE
+            or elapsed_s + expected <= self.budget_s
+        ):
+            self._skipped_in_a_row = 0
+            return True
+        self._skipped_in_a_row += 1
+        self.skipped += 1
+        return False
+
+    def record(self, seconds: float) -> None:
+        """How long a tile pass (and its fusion) took [s]."""
+        self._passes.append(float(seconds))

@@ -203,6 +203,7 @@ class GlobalDetector(OnnxDetector):
         frame_width: int,
         frame_height: int,
         previous_features: np.ndarray | None = None,
+        tiles_wanted: Callable[[], bool] | None = None,
     ) -> tuple[np.ndarray, np.ndarray | None]:
         """Second half of the split: the model on an already letterboxed pair (:meth:`prepare`).
 
@@ -214,6 +215,10 @@ class GlobalDetector(OnnxDetector):
         returned for ``previous_input`` (the caller keys them by frame); ones of the wrong shape
         are ignored and recomputed. The features returned are None when the detector has no
         split model to reuse them with.
+
+        ``tiles_wanted``, with a ``tile_detector``, is asked once AM-YOLO's boxes are in: False
+        skips the tile pass for this pair, and AM-YOLO's boxes are cut at ``score_threshold`` alone
+        (as without tile fusion). A live caller uses it to keep a late pair within its deadline.
         """
         if previous_input.shape != current_input.shape:
             raise ValueError(
@@ -248,9 +253,10 @@ class GlobalDetector(OnnxDetector):
             detections = np.concatenate([detections, one_hot_probabilities(detections[:, 5])], axis=1)
         detections = drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
         if self.tile_detector is not None:
-            detections = fuse_with_tiles(
-                detections, self.tile_detector, previous_input, current_input, mapping, frame_width, frame_height
-            )
+            if tiles_wanted is None or tiles_wanted():
+                detections = fuse_with_tiles(
+                    detections, self.tile_detector, previous_input, current_input, mapping, frame_width, frame_height
+                )
             detections = detections[detections[:, 4] >= self.score_threshold]
         return detections.astype(np.float32), current_features
 

@@ -125,6 +125,15 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ),
         ParamSpec("tile_model_path", "", "Local ONNX file for tile_fusion; empty = the model shipped with gldt_core"),
         ParamSpec(
+            "tile_budget",
+            0.065,
+            "Seconds after a pair's arrival by which its detections are due (the tracker's answer_deadline less "
+            "the hops): a pair whose AM-YOLO pass ends too late for the tile pass (its recent median time) skips "
+            "it and is answered with AM-YOLO's boxes alone (tiles_skipped); 0 = always fuse (lockstep: as offline)",
+            0.0,
+            10.0,
+        ),
+        ParamSpec(
             "pair_queue_depth",
             1,
             "Frame pairs kept while the detector runs; "

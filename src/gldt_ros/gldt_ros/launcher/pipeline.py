@@ -277,11 +277,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 #: the camera input takes every frame it sends (a best-effort reader may lose one).
 BAG_OVERRIDES = {name: ["-p", "camera_qos:=reliable"] for name in ("frame_pair_buffer", "jptrack_tracker")}
 #: Parameter overrides a lockstep replay needs besides: the scheduler waits for LOCAL reports, and the
-#: buffer sends every GLOBAL pair and the tracker waits for every frame's detections (no planned skip
-#: and no answer at a deadline: both would depend on message timing).
+#: buffer sends every GLOBAL pair, the global detector fuses every pair's tiles and the tracker waits
+#: for every frame's detections (no planned skip, no tile pass skipped and no answer at a deadline:
+#: each would depend on message timing).
 LOCKSTEP_OVERRIDES = {
     "mode_scheduler": ["-p", "lockstep:=true"],
     "frame_pair_buffer": ["-p", "skip_global_when_busy:=false"],
+    "global_detector": ["-p", "tile_budget:=0.0"],
     "jptrack_tracker": ["-p", "answer_deadline:=0.0"],
 }
 

@@ -9,6 +9,12 @@ Once it has answered a pair, the buffer sends the next one without its previous 
 frame kept here); should that frame be gone (this node restarted in between), the current frame is
 paired with itself, as on a stream's first frame, and a warning says so.
 
+With ``tile_fusion`` the local model's tile pass follows AM-YOLO's on each pair. Live, a pair whose
+AM-YOLO pass ends too late for the tile pass to fit within ``tile_budget`` of its arrival skips it
+and is answered with AM-YOLO's boxes alone (:class:`gldt_core.detect.fusion.TilePassBudget`;
+counted as ``tiles_skipped``): on a slow machine its detections still reach the tracker by its
+answer deadline. A lockstep replay sets the budget to 0, so every pair is fused, as offline.
+
 The model runs on a thread of its own (:class:`gldt_ros.runtime.worker.KeepNewestWorker`), and the
 detections are published from the thread that spins the node: in a process it shares with other
 nodes (``pipeline --processes one-process``) they keep answering frames while it works, as they
@@ -25,7 +31,7 @@ import numpy as np
 from gldt_msgs.msg import Detection, DetectionArray, FramePair
 
 from gldt_core.detect import GlobalCarry, GlobalDetector
-from gldt_core.detect.fusion import build_tile_detector
+from gldt_core.detect.fusion import TilePassBudget, build_tile_detector
 from gldt_core.detect.postprocess import Letterbox
 from gldt_core.detect.second_stage import GLOBAL_COLUMNS
 from gldt_core.system.steps import drop_nested, filter_classes
@@ -39,6 +45,8 @@ from gldt_ros.runtime.worker import KeepNewestWorker
 #: Blank pairs run before the node reports ready (:meth:`GlobalDetectorNode.warm_up`): the first
 #: computes the previous frame's features too, the second reuses them, as in a GD stretch.
 WARM_UP_RUNS = 2
+#: Diagnostics counter: pairs answered without their tile pass (``tile_budget``).
+TILES_SKIPPED = "tiles_skipped"
 
 
 class GlobalDetectorNode(GldtNode):
@@ -50,6 +58,9 @@ class GlobalDetectorNode(GldtNode):
             # built once AM-YOLO has opened, so its errors come first
             tiles = functools.partial(build_tile_detector, self.param("tile_model_path") or None, settings)
         self.detector = GlobalDetector(**settings, tile_detector=tiles)
+        self.tile_budget = TilePassBudget(float(self.param("tile_budget"))) if tiles is not None else None
+        if self.tile_budget is not None:
+            self.events[TILES_SKIPPED] = 0  # reported from the start, as the base counters are
         self.classes = parse_classes(self.param("classes"))
         # On a small CPU AM-YOLO takes longer than a frame period, so during a GD stretch at 30 Hz
         # pairs arrive faster than it answers, and queueing them puts whole seconds between camera
@@ -62,14 +73,18 @@ class GlobalDetectorNode(GldtNode):
         # guarded() counts and times each pair on the worker's thread; the diagnostics timer reads
         # those counters on the spinning thread: single attribute updates and deque appends, each
         # atomic under the GIL, and a status a frame late is harmless.
-        self.worker: KeepNewestWorker[FramePair] = KeepNewestWorker(
+        self.worker: KeepNewestWorker[tuple[float, FramePair]] = KeepNewestWorker(
             self.guarded(self.answer, "frame pair"),
             depth=int(self.param("pair_queue_depth")),
             on_error=self.fail_from_thread,
             name="gldt-global-detector",
         )
         # Last, once warm: pipeline takes the graph as up when this subscription is matched.
-        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.worker.submit, pairs_qos)
+        self.create_subscription(FramePair, topics.FRAME_PAIRS, self.on_pair, pairs_qos)
+
+    def on_pair(self, pair: FramePair) -> None:
+        """Hand ``pair`` to the worker with the monotonic time it arrived (``tile_budget`` counts from it)."""
+        self.worker.submit((time.monotonic(), pair))
 
     def destroy_node(self) -> None:
         self.closing = True  # before the stop: a pair still in the model's hands is dropped, not published
@@ -108,14 +123,28 @@ class GlobalDetectorNode(GldtNode):
         )
         return GlobalCarry(current)
 
-    def answer(self, pair: FramePair) -> None:
-        """The worker's work: detect on ``pair``, and publish the detections from the spinning thread."""
-        self.call_on_spin_thread(functools.partial(self.publisher.publish, self.detect(pair)))
+    def answer(self, arrived_pair: tuple[float, FramePair]) -> None:
+        """The worker's work: detect on a pair (with the time it arrived), and publish the
+        detections from the spinning thread."""
+        arrived, pair = arrived_pair
+        self.call_on_spin_thread(functools.partial(self.publisher.publish, self.detect(pair, arrived)))
 
-    def detect(self, pair: FramePair) -> DetectionArray:
+    def tiles_wanted(self, arrived: float, tiles_started: list[float]) -> bool:
+        """Asked once AM-YOLO's boxes of a pair that arrived at ``arrived`` (monotonic) are in:
+        whether its tile pass still fits ``tile_budget``; if so its start goes to ``tiles_started``."""
+        now = time.monotonic()
+        if self.tile_budget is not None and not self.tile_budget.wanted(now - arrived):
+            self.count_event(TILES_SKIPPED)
+            return False
+        tiles_started.append(now)
+        return True
+
+    def detect(self, pair: FramePair, arrived: float | None = None) -> DetectionArray:
         """The detections of ``pair``, in full-frame pixels; the features of its current frame are
-        kept for the next pair."""
+        kept for the next pair. ``arrived``: the monotonic time the pair came (None: now)."""
         start = time.perf_counter()
+        arrived = time.monotonic() if arrived is None else arrived
+        tiles_started: list[float] = []
         current = image_to_bgr(pair.current)
         if pair.previous.height == 0:  # sent without it: the frame kept from the last pair
             held = self.held_previous(pair, current)
@@ -126,8 +155,16 @@ class GlobalDetectorNode(GldtNode):
         letterbox = Letterbox(pair.scale, int(pair.pad_x), int(pair.pad_y), current.shape[1], current.shape[0])
         self.last_pair, self.last_pair_index = None, None
         raw, current_features = self.detector.detect_prepared(
-            previous, current, letterbox, int(pair.full_width), int(pair.full_height), previous_features
+            previous,
+            current,
+            letterbox,
+            int(pair.full_width),
+            int(pair.full_height),
+            previous_features,
+            tiles_wanted=functools.partial(self.tiles_wanted, arrived, tiles_started),
         )
+        if tiles_started and self.tile_budget is not None:
+            self.tile_budget.record(time.monotonic() - tiles_started[0])
         if pair.header.frame_id != WARM_UP_FRAME_ID:  # it leaves no state behind
             self.last_pair, self.last_pair_index = GlobalCarry(current, current_features), int(pair.frame_index)
         detections = drop_nested(
