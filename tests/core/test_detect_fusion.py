@@ -155,6 +155,24 @@ def test_a_pair_whose_tile_pass_is_not_wanted_keeps_the_global_boxes_at_the_thre
         differs += int(len(fused) != len(rows) or not np.allclose(fused, rows, atol=1e-4))
     assert len(asked) == 3
     assert differs >= 1, "with the tile pass the rows change on some of these frames"
+    alone.detect_prepared(previous_input, current_input, mapping, width, height, tiles_wanted=late)
+    assert len(asked) == 3, "a detector without tiles never asks"
+
+
+def test_a_pair_letterboxed_below_the_tiles_scale_is_never_asked_about_its_tile_pass(fused_detector: object) -> None:
+    """A 1080p pair has no tile pass to skip: a live node must not count it as skipped."""
+    import cv2
+
+    previous, current = (cv2.resize(frame, (1920, 1080)) for frame in real_pairs(6)[0])
+    previous_input, _ = fused_detector.prepare(previous)  # type: ignore[attr-defined]
+    current_input, mapping = fused_detector.prepare(current)  # type: ignore[attr-defined]
+
+    def never() -> bool:
+        raise AssertionError("asked about a tile pass that does not run")
+
+    fused_detector.detect_prepared(  # type: ignore[attr-defined]
+        previous_input, current_input, mapping, 1920, 1080, tiles_wanted=never
+    )
 
 
 def test_the_tile_pass_budget_runs_a_pass_only_where_its_expected_time_still_fits() -> None:

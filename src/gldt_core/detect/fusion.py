@@ -15,12 +15,13 @@ sizes, as its annotations do (:data:`gldt_core.eval.halmstad_split.LOOSE_IOU`).
 the local model's over :data:`TILE_SIDE` tiles of the same letterboxed frame. It runs inside
 :meth:`gldt_core.detect.GlobalDetector.detect_prepared`, so the offline system and the
 ``global_detector`` node fuse the same rows. Live, the node may skip the tile pass of a pair that
-is already late (:class:`TilePassBudget`), so that its detections reach the tracker by its deadline.
+is already late (:class:`TilePassBudget`), so that fewer of its pairs reach the tracker after its deadline.
 """
 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -112,13 +113,15 @@ def fuse_with_tiles(
     mapping: Letterbox,
     frame_width: int,
     frame_height: int,
+    wanted: Callable[[], bool] | None = None,
 ) -> np.ndarray:
     """AM-YOLO's ``(N, 9)`` rows of a GD frame (full-frame pixels) fused with the local model's
     over :data:`TILE_SIDE` tiles of the letterboxed pair it saw (``mapping`` takes them back to the
     ``frame_width x frame_height`` frame); ``global_rows`` unchanged where the letterbox scale is
-    below :data:`TILE_MIN_SCALE`. Both detectors' scores must be calibrated, and neither cut at
-    the operating threshold yet: the caller cuts the fused rows."""
-    if mapping.scale < TILE_MIN_SCALE:
+    below :data:`TILE_MIN_SCALE`, or where ``wanted``, asked only for a pair whose tiles would run,
+    says False (a live pair too late for the pass). Both detectors' scores must be calibrated, and
+    neither cut at the operating threshold yet: the caller cuts the fused rows."""
+    if mapping.scale < TILE_MIN_SCALE or (wanted is not None and not wanted()):
         return global_rows
     tiles = local.detect_tiles(current_input, previous_input, TILE_SIDE)
     tiles = drop_degenerate(unletterbox(tiles, mapping, frame_width, frame_height))

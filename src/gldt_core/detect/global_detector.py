@@ -216,9 +216,10 @@ class GlobalDetector(OnnxDetector):
         are ignored and recomputed. The features returned are None when the detector has no
         split model to reuse them with.
 
-        ``tiles_wanted``, with a ``tile_detector``, is asked once AM-YOLO's boxes are in: False
-        skips the tile pass for this pair, and AM-YOLO's boxes are cut at ``score_threshold`` alone
-        (as without tile fusion). A live caller uses it to keep a late pair within its deadline.
+        ``tiles_wanted``, with a ``tile_detector`` and a pair whose tiles run, is asked once
+        AM-YOLO's boxes are in: False skips the tile pass for this pair, and AM-YOLO's boxes are
+        cut at ``score_threshold`` alone (as without tile fusion). A live caller uses it for a
+        pair that is already late.
         """
         if previous_input.shape != current_input.shape:
             raise ValueError(
@@ -253,10 +254,16 @@ class GlobalDetector(OnnxDetector):
             detections = np.concatenate([detections, one_hot_probabilities(detections[:, 5])], axis=1)
         detections = drop_degenerate(unletterbox(detections, mapping, frame_width, frame_height))
         if self.tile_detector is not None:
-            if tiles_wanted is None or tiles_wanted():
-                detections = fuse_with_tiles(
-                    detections, self.tile_detector, previous_input, current_input, mapping, frame_width, frame_height
-                )
+            detections = fuse_with_tiles(
+                detections,
+                self.tile_detector,
+                previous_input,
+                current_input,
+                mapping,
+                frame_width,
+                frame_height,
+                wanted=tiles_wanted,
+            )
             detections = detections[detections[:, 4] >= self.score_threshold]
         return detections.astype(np.float32), current_features
 

@@ -127,9 +127,10 @@ SCHEMA: dict[str, tuple[ParamSpec, ...]] = {
         ParamSpec(
             "tile_budget",
             0.065,
-            "Seconds after a pair's arrival by which its detections are due (the tracker's answer_deadline less "
-            "the hops): a pair whose AM-YOLO pass ends too late for the tile pass (its recent median time) skips "
-            "it and is answered with AM-YOLO's boxes alone (tiles_skipped); 0 = always fuse (lockstep: as offline)",
+            "Seconds after a pair's arrival at this node by which its detections are due: a pair whose AM-YOLO "
+            "pass ends too late for the tile pass (its recent median time) skips it and is answered with AM-YOLO's "
+            "boxes alone (tiles_skipped); keep it below the tracker's answer_deadline less the hops before and "
+            "after this node (change both together); 0 = always fuse (lockstep: as offline)",
             0.0,
             10.0,
         ),

@@ -12,8 +12,8 @@ paired with itself, as on a stream's first frame, and a warning says so.
 With ``tile_fusion`` the local model's tile pass follows AM-YOLO's on each pair. Live, a pair whose
 AM-YOLO pass ends too late for the tile pass to fit within ``tile_budget`` of its arrival skips it
 and is answered with AM-YOLO's boxes alone (:class:`gldt_core.detect.fusion.TilePassBudget`;
-counted as ``tiles_skipped``): on a slow machine its detections still reach the tracker by its
-answer deadline. A lockstep replay sets the budget to 0, so every pair is fused, as offline.
+counted as ``tiles_skipped``): on a slow machine fewer pairs reach the tracker after its answer
+deadline. A lockstep replay sets the budget to 0, so every pair is fused, as offline.
 
 The model runs on a thread of its own (:class:`gldt_ros.runtime.worker.KeepNewestWorker`), and the
 detections are published from the thread that spins the node: in a process it shares with other
