@@ -443,3 +443,41 @@ def test_a_default_replay_is_stamped_now(tmp_path: Path) -> None:
     assert len(stamps) == len(bag_stamps)
     assert started <= stamps[0] <= time.time_ns()
     np.testing.assert_array_equal(stamps - stamps[0], bag_stamps - bag_stamps[0])
+
+
+# ------------------------------------------------------------------ the end of a paced replay
+
+
+class _Answers:
+    """Stands in for the graph driver's count of answers, which its subscription raises."""
+
+    def __init__(self, received: int = 0) -> None:
+        self.tracks_received = received
+
+
+def test_a_paced_replay_ends_when_its_last_answer_comes_not_a_quiet_period_later() -> None:
+    """``pipeline`` prints the replay's time: it must end with the last answer. It used to wait a
+    whole quiet period after any answer still missing, one second more than the replay took."""
+    from gldt_ros.launcher.replay import GraphDriver
+
+    answers, stop = _Answers(), threading.Event()
+    threading.Timer(0.05, lambda: setattr(answers, "tracks_received", 3)).start()
+    start = time.monotonic()
+    GraphDriver.drain(answers, 3, stop, quiet_s=30.0)  # type: ignore[arg-type]
+    assert time.monotonic() - start < 15.0, "it returned at the last answer, long before the quiet period"
+    assert answers.tracks_received == 3
+
+
+def test_a_paced_replay_whose_answers_stop_gives_up_after_the_quiet_period() -> None:
+    from gldt_ros.launcher.replay import GraphDriver
+
+    answers, stop = _Answers(1), threading.Event()
+    done = threading.Event()
+
+    def drain() -> None:
+        GraphDriver.drain(answers, 3, stop, quiet_s=0.2)  # type: ignore[arg-type]
+        done.set()
+
+    threading.Thread(target=drain, daemon=True).start()
+    assert done.wait(20.0), "a graph that went quiet is not waited for forever"
+    stop.set()

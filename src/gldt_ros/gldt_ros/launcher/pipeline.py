@@ -667,8 +667,8 @@ def report_removed_segments() -> None:
     removed = remove_dead_segments()
     if removed:
         print(
-            f"pipeline: removed {len(removed)} shared-memory segment(s) that killed DDS processes "
-            "(a restarted node, or an earlier run's) had left in /dev/shm",
+            f"pipeline: removed {len(removed)} stale shared-memory segment(s) from /dev/shm, left by DDS processes "
+            "no longer running (an earlier run's, or a restarted node's); harmless",
             flush=True,
         )
 

@@ -96,6 +96,8 @@ TRANSPORT_TYPES = {"raw": IMAGE_TYPE, "compressed": COMPRESSED_TYPE}
 STAMPED_TYPES = frozenset({*IMAGE_TYPES, CAMERA_INFO_TYPE, GROUND_TRUTH_TYPE})
 #: Seconds between ``/clock`` messages while a paced replay waits for its next message.
 CLOCK_PERIOD_S = 0.01
+#: How often the end of a paced replay looks whether the last answers came [s].
+DRAIN_POLL_S = 0.005
 #: Where rclpy's time source listens (absolute: one clock for every namespace).
 CLOCK_TOPIC = "/clock"
 #: ``pipeline``'s exit status when a replay lost frames or left them unanswered (:func:`loss_reason`);
@@ -770,14 +772,19 @@ class GraphDriver(Node):
 
     def drain(self, frames: int, stop: threading.Event, quiet_s: float = 1.0, limit_s: float | None = None) -> None:
         """After a paced replay, wait until the graph has answered ``frames`` frames or gone quiet
-        for ``quiet_s`` (and at most ``limit_s`` when given)."""
-        deadline = None if limit_s is None else time.monotonic() + limit_s
-        last = -1
-        while not stop.is_set() and self.tracks_received < frames and self.tracks_received != last:
-            if deadline is not None and time.monotonic() >= deadline:
+        for ``quiet_s`` (and at most ``limit_s`` when given). It returns as soon as the last answer
+        comes: the replay's time that ``pipeline`` prints ends there, not a quiet period later."""
+        start = time.monotonic()
+        last, quiet_since = self.tracks_received, start
+        while not stop.is_set() and self.tracks_received < frames:
+            now = time.monotonic()
+            if limit_s is not None and now - start >= limit_s:
                 break
-            last = self.tracks_received
-            stop.wait(quiet_s)
+            if self.tracks_received != last:
+                last, quiet_since = self.tracks_received, now
+            elif now - quiet_since >= quiet_s:
+                break
+            stop.wait(DRAIN_POLL_S)
 
     def close(self) -> None:
         """Close the recording; messages still arriving are no longer recorded."""
