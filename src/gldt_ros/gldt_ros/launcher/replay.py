@@ -98,6 +98,9 @@ STAMPED_TYPES = frozenset({*IMAGE_TYPES, CAMERA_INFO_TYPE, GROUND_TRUTH_TYPE})
 CLOCK_PERIOD_S = 0.01
 #: How often the end of a paced replay looks whether the last answers came [s].
 DRAIN_POLL_S = 0.005
+#: How long a paced replay still listens after its last answer [s], outside the time it reports:
+#: a second answer to a frame (which ``bench.live`` counts) still reaches the recording.
+LATE_ANSWER_GRACE_S = 0.5
 #: Where rclpy's time source listens (absolute: one clock for every namespace).
 CLOCK_TOPIC = "/clock"
 #: ``pipeline``'s exit status when a replay lost frames or left them unanswered (:func:`loss_reason`);
@@ -634,6 +637,8 @@ class GraphDriver(Node):
         elif last_stamp is not None:
             self.wait_until_recorded(last_stamp, stop)
         elapsed = time.monotonic() - start_wall
+        if not self.args.lockstep:
+            stop.wait(LATE_ANSWER_GRACE_S)  # not in the replay's time: see the constant
         self.frames_published = frames
         unanswered = waited_out if self.args.lockstep else max(0, frames - self.frames_answered)
         self.loss = loss_reason(
