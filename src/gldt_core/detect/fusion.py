@@ -172,7 +172,6 @@ class TilePassBudget:
         self.budget_s = float(budget_s)
         self._passes: deque[float] = deque(maxlen=TILE_PASS_HISTORY)
         self._skipped_in_a_row = 0
-        self.skipped = 0  # pairs whose tile pass was skipped, in all
 
     def expected_s(self) -> float | None:
         """The expected time of the next tile pass [s]; None before the first."""
@@ -180,7 +179,7 @@ class TilePassBudget:
 
     def wanted(self, elapsed_s: float) -> bool:
         """Whether a pair whose AM-YOLO pass ended ``elapsed_s`` after its arrival gets its tile
-        pass (a skip is counted)."""
+        pass (the caller counts the skips: ``global_detector``'s ``tiles_skipped``)."""
         expected = self.expected_s()
         if (
             self.budget_s == 0.0
@@ -191,7 +190,6 @@ class TilePassBudget:
             self._skipped_in_a_row = 0
             return True
         self._skipped_in_a_row += 1
-        self.skipped += 1
         return False
 
     def record(self, seconds: float) -> None:
