@@ -198,6 +198,48 @@ def test_the_floors_leave_boxes_of_32_px_and_more_to_bytetrack() -> None:
     np.testing.assert_allclose(birth_velocity_std, [2.0, 2.0, 10 * 0.5 / 8, 10 * 0.5 / 8])
 
 
+def _flickering_width(model: KalmanModel) -> tuple[float, float]:
+    """A still box whose detections are alternately tight and loose (20 and 32 px wide), as a
+    small drone's are: the spread of the filtered width over the last 60 frames, and the largest
+    distance of the filtered centre from the true one."""
+    kf = ConstantVelocityKalman(np.array([300.0, 200.0, 26.0, 20.0]), model=model)
+    widths, centre_error = [], 0.0
+    for k in range(1, 120):
+        kf.predict(1 / 30)
+        w = 20.0 if k % 2 else 32.0
+        kf.update(np.array([300.0, 200.0, w, 0.77 * w]))
+        widths.append(kf.mean[2])
+        centre_error = max(centre_error, float(np.hypot(kf.mean[0] - 300.0, kf.mean[1] - 200.0)))
+    return float(np.std(widths[60:])), centre_error
+
+
+def test_jptrack_trusts_a_measured_size_less_than_a_measured_position() -> None:
+    """A detector's box size flickers from frame to frame on a small drone (tight, then loose):
+    JPTrack's filter takes 5 times ByteTrack's measurement noise for the size, so its width
+    flickers a third as much, and the centre is as exact as before."""
+    plain_spread, plain_error = _flickering_width(JPTrackConfig(kf_size_measurement_factor=1.0).kalman_model())
+    spread, error = _flickering_width(JPTRACK_MODEL)
+    assert JPTRACK_MODEL.size_measurement_factor == 5.0
+    assert spread < plain_spread / 3 and spread < 1.0  # the detections' width: std 6 px
+    assert error == pytest.approx(plain_error, abs=1e-9) and error < 1e-6
+    r = np.sqrt(
+        np.diag(ConstantVelocityKalman(np.array([0.0, 0.0, 40.0, 20.0]), model=JPTRACK_MODEL).measurement_noise())
+    )
+    np.testing.assert_allclose(r, [40.0 / 20, 20.0 / 20, 5 * 40.0 / 20, 5 * 20.0 / 20])
+
+
+def test_a_size_trusted_less_still_follows_an_approaching_drone() -> None:
+    """A drone closing in grows 2 % a frame (its size doubles in 1.2 s): the filter's size velocity
+    keeps the filtered box within 2 % of the measured one."""
+    kf = ConstantVelocityKalman(np.array([300.0, 200.0, 20.0, 15.0]), model=JPTRACK_MODEL)
+    for k in range(1, 90):
+        size = 20.0 * 1.02**k
+        kf.predict(1 / 30)
+        kf.update(np.array([300.0, 200.0, size, 0.75 * size]))
+        if k >= 30:
+            assert kf.mean[2] / size == pytest.approx(1.0, abs=0.02)
+
+
 def test_without_floors_the_noise_is_proportional_to_the_size_at_any_size() -> None:
     small = ConstantVelocityKalman(np.array([500.0, 500.0, 6.0, 4.0]))
     _, q = small.transition(1 / 30)
@@ -216,7 +258,12 @@ def test_the_trackers_give_their_tracks_their_own_filter() -> None:
     assert jp.tracks[0].kf.model == JPTRACK_MODEL and jp.tracks[0].kf.model.min_centre_process_std_px == 1.5
     assert bt.tracks[0].kf.model == BYTETRACK_MODEL
     floorless = JPTrack(
-        JPTrackConfig(kf_min_std_px=0.0, kf_centre_process_floor_px=0.0, kf_birth_velocity_floor_px=0.0)
+        JPTrackConfig(
+            kf_min_std_px=0.0,
+            kf_centre_process_floor_px=0.0,
+            kf_birth_velocity_floor_px=0.0,
+            kf_size_measurement_factor=1.0,
+        )
     )
     floorless.update(box, 0.0)
     assert floorless.tracks[0].kf.model == KalmanModel()
@@ -258,7 +305,14 @@ def test_stop_height_velocity_keeps_a_coasting_box_at_its_size() -> None:
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{"min_std_px": -0.1}, {"min_centre_process_std_px": float("nan")}, {"aspect_ratio": True, "min_std_px": 0.5}],
+    [
+        {"min_std_px": -0.1},
+        {"min_centre_process_std_px": float("nan")},
+        {"aspect_ratio": True, "min_std_px": 0.5},
+        {"size_measurement_factor": 0.0},
+        {"size_measurement_factor": float("inf")},
+        {"aspect_ratio": True, "size_measurement_factor": 2.0},
+    ],
 )
 def test_a_model_refuses_negative_floors_and_floors_on_the_reference_filter(kwargs) -> None:
     with pytest.raises(ValueError):

@@ -60,6 +60,10 @@ Table I value is a config field with the paper's default. What the paper leaves 
   1-2 s bursts of misses, while wider gates start to pick clutter (docs/experiment-log.md).
 * The Kalman filter is on ``[cx, cy, w, h]`` with pixel floors under its noise (``kf_*``, see
   :mod:`.kalman`), for small targets on a shaking camera; ByteTrack keeps the reference filter.
+  It also trusts a measured size less than a measured position (``kf_size_measurement_factor``,
+  5 times ByteTrack's measurement noise on ``w`` and ``h``): a detector boxes a small drone
+  tightly on one frame and loosely on the next, and with ByteTrack's noise the track's box took
+  each size as it came; its size velocity still follows a drone closing in.
 * A large, close drone is sometimes boxed whole and sometimes as two or three parts (body halves,
   a wing) by the detector. One part then keeps the track and shrinks its box, and another part
   starts a second track on the same drone; the two ids then take turns on it. So before stage 1,
@@ -175,6 +179,10 @@ class JPTrackConfig:
     kf_min_std_px: float = 0.5
     kf_centre_process_floor_px: float = 1.5
     kf_birth_velocity_floor_px: float = 2.0
+    # The measurement noise of the box size (w, h) as a multiple of ByteTrack's 1/20 of the size
+    # (KalmanModel.size_measurement_factor): chosen on the tuning profiles by their worst, beside
+    # 1, 2, 3, 8 and 12 (docs/experiment-log.md, Tracking, 2026-12-07 evening).
+    kf_size_measurement_factor: float = 5.0
     # Detections that are parts of one confirmed track at least this large (sqrt(w h), px) merge
     # into one before association (module docstring); 0 turns it off.
     part_merge_min_size_px: float = 40.0
@@ -197,6 +205,7 @@ class JPTrackConfig:
             min_std_px=self.kf_min_std_px,
             min_centre_process_std_px=self.kf_centre_process_floor_px,
             min_birth_centre_velocity_std_px=self.kf_birth_velocity_floor_px,
+            size_measurement_factor=self.kf_size_measurement_factor,
         )
 
     def weights(self) -> JcmaWeights:

@@ -44,7 +44,12 @@ The floors of the ``[cx, cy, w, h]`` model, all 0 (off) unless given; JPTrack se
   position floor taking the innovations, such a filter learnt a fast small target's velocity too
   slowly for PMR to bring the track back after an occlusion (tests/core/test_track_lost.py).
 
-The measurements behind the floors are in docs/experiment-log.md (Tracking).
+Besides the floors, ``size_measurement_factor`` (1 unless given) multiplies the measurement noise of
+``w`` and ``h`` (and its floor), the position's staying ByteTrack's. A detector's box of a small
+target is tight on one frame and loose on the next; JPTrack trusts the measured size less than
+the measured position (5), and the size velocity still follows a target closing in.
+
+The measurements behind the floors and the factor are in docs/experiment-log.md (Tracking).
 
 Why numpy and not ``filterpy.kalman.KalmanFilter`` (which the issue names): the algebra is
 identical (``tests/core/test_track_kalman.py`` checks our predict/update against filterpy's), but a
@@ -80,20 +85,26 @@ class KalmanModel:
 
     ``aspect_ratio``: ByteTrack's ``[cx, cy, a, h]`` state instead of ``[cx, cy, w, h]``. The
     floors, in pixels (per reference frame for the velocity one), apply to ``[cx, cy, w, h]``
-    only; 0 turns each off.
+    only; 0 turns each off. ``size_measurement_factor`` scales the measurement noise of ``w`` and
+    ``h`` (``[cx, cy, w, h]`` only; 1 is ByteTrack's).
     """
 
     aspect_ratio: bool = False
     min_std_px: float = 0.0
     min_centre_process_std_px: float = 0.0
     min_birth_centre_velocity_std_px: float = 0.0
+    size_measurement_factor: float = 1.0
 
     def __post_init__(self) -> None:
         floors = (self.min_std_px, self.min_centre_process_std_px, self.min_birth_centre_velocity_std_px)
         if not all(math.isfinite(f) and f >= 0.0 for f in floors):
             raise ValueError(f"Kalman floors must be finite and >= 0, got {floors}")
-        if self.aspect_ratio and any(floors):
-            raise ValueError("the [cx, cy, a, h] filter is ByteTrack's reference filter: it has no pixel floors")
+        if not (math.isfinite(self.size_measurement_factor) and self.size_measurement_factor > 0.0):
+            raise ValueError(f"size_measurement_factor must be finite and > 0, got {self.size_measurement_factor!r}")
+        if self.aspect_ratio and (any(floors) or self.size_measurement_factor != 1.0):
+            raise ValueError(
+                "the [cx, cy, a, h] filter is ByteTrack's reference filter: it has no pixel floors or size factor"
+            )
 
     @functools.cached_property
     def tables(self) -> _Tables:
@@ -141,8 +152,8 @@ def _tables(model: KalmanModel) -> _Tables:
         weight=np.array([wp] * 4 + [wv] * 4),
         floor=np.array([centre_floor] * 2 + [size_floor] * 2 + [velocity_floor] * 4),
         r_size_col=np.array([2, 3, 2, 3]),
-        r_weight=np.full(4, wp),
-        r_floor=np.full(4, size_floor),
+        r_weight=np.array([wp, wp] + [wp * model.size_measurement_factor] * 2),
+        r_floor=np.array([size_floor, size_floor] + [size_floor * model.size_measurement_factor] * 2),
         min_size=1e-3,
     )
 
