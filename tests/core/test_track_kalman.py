@@ -314,7 +314,7 @@ def test_stop_height_velocity_keeps_a_coasting_box_at_its_size() -> None:
         {"aspect_ratio": True, "size_measurement_factor": 2.0},
     ],
 )
-def test_a_model_refuses_negative_floors_and_floors_on_the_reference_filter(kwargs) -> None:
+def test_a_model_refuses_bad_noise_settings_and_any_on_the_reference_filter(kwargs) -> None:
     with pytest.raises(ValueError):
         KalmanModel(**kwargs)
 
