@@ -435,3 +435,113 @@ def test_an_unknown_input_norm_is_refused_in_one_line(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match=r"^model\.input_norm must be one of none, border, got 'sky'$"):
         fit_classifier(config, toy_crops(), toy_crops(seed=1), tmp_path)
     assert not any(tmp_path.iterdir()), "nothing written"
+
+
+def ensemble_config(tmp_path: Path, epochs: int = 4) -> Path:
+    """An ensemble of two tiny members, one seeing its crops against their border ring."""
+    (tmp_path / "member.yaml").write_text(
+        f"model: {{channels: [4, 4, 8, 8], hidden: 8}}\ntrain: {{epochs: {epochs}, batch_size: 16, lr: 0.01}}\n"
+    )
+    path = tmp_path / "ensemble.yaml"
+    path.write_text(
+        f"out_dir: {tmp_path / 'run'}\n"
+        "members:\n  - config: member.yaml\n  - config: member.yaml\n    model: {input_norm: border}\n"
+        "    train: {grayscale_p: 0.2}\n"
+    )
+    return path
+
+
+def test_an_ensemble_averages_its_members_log_probabilities_and_exports_as_one_model(tmp_path: Path) -> None:
+    from gldt_core.training.second_stage import CropClassifierEnsemble
+
+    torch.set_num_threads(1)
+    members = []
+    for norm in ("none", "border"):
+        config = tiny_config(2)
+        config["model"]["input_norm"] = norm
+        fitted = fit_classifier(config, toy_crops(96), toy_crops(16, 1), tmp_path / norm, progress=False)
+        assert fitted is not None
+        members.append(fitted[0].eval())
+    ensemble = CropClassifierEnsemble(members).eval()
+    crops, geometry = torch.rand(5, 6, CROP_SIZE, CROP_SIZE) * 255, torch.randn(5, 4) * 0.3
+    with torch.no_grad():
+        log_p, quality, correction = ensemble.outputs(crops, geometry)
+        alone = [member(crops, geometry) for member in members]
+    mean = (torch.log_softmax(alone[0][0], 1) + torch.log_softmax(alone[1][0], 1)) / 2
+    torch.testing.assert_close(log_p, mean)
+    torch.testing.assert_close(quality, (alone[0][1] + alone[1][1]) / 2)
+    assert correction is None
+    assert not torch.allclose(torch.log_softmax(alone[0][0], 1), torch.log_softmax(alone[1][0], 1))
+    entry = calibrate(ensemble, toy_crops(64, seed=2))
+    path = export_second_stage(ensemble, tmp_path / "second_stage.onnx", {"calibration": entry})
+    stage = SecondStage(path, score_threshold=0.0)
+    logits, stage_quality, _ = stage.classify(crops.numpy(), geometry.numpy())
+    np.testing.assert_allclose(logits, mean.numpy(), atol=1e-4)
+    np.testing.assert_allclose(stage_quality, quality.numpy().reshape(-1), atol=1e-4)
+    with pytest.raises(ValueError, match="at least two members"):
+        CropClassifierEnsemble(members[:1])
+    correcting = CropClassifier([4, 4, 8, 8], 8, box_correction=True)
+    with pytest.raises(ValueError, match="cannot correct boxes"):
+        CropClassifierEnsemble([members[0], correcting])
+
+
+def test_an_ensemble_config_gives_each_member_its_changes_and_refuses_bad_ones_in_one_line(tmp_path: Path) -> None:
+    config = load_config(ensemble_config(tmp_path))
+    first, second = config["members"]
+    assert config["out_dir"] == str(tmp_path / "run")
+    assert (first["model"]["input_norm"], second["model"]["input_norm"]) == ("none", "border")
+    assert (first["train"]["grayscale_p"], second["train"]["grayscale_p"]) == (0.0, 0.2)
+    assert first["model"]["channels"] == second["model"]["channels"] == [4, 4, 8, 8]
+    committed = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_ensemble.yaml")
+    assert [member["model"]["input_norm"] for member in committed["members"]] == ["none", "border"]
+    assert [member["train"]["grayscale_p"] for member in committed["members"]] == [0.0, 0.2]
+    cases = {
+        "members:\n  - config: member.yaml\n": "at least two member configs",
+        "members: [{config: member.yaml}, {config: member.yaml}]\nseed: 3\n": "only members and out_dir, not seed",
+        "members: [{config: member.yaml}, member.yaml]\n": r"members\[1\] must be a mapping with config",
+        "members: [{config: member.yaml}, {config: member.yaml, model: {box_correction: true}}]\n": "corrects boxes",
+        "members: [{config: member.yaml}, {config: member.yaml, data: {calibration_period: 3}}]\n": "data section",
+        "members: [{config: member.yaml}, {config: member.yaml, train: {epoch: 3}}]\n": "unknown config key",
+        "members: [{config: member.yaml}, {config: ensemble.yaml}]\n": "is an ensemble itself",
+        "members: [{config: member.yaml}, {config: missing.yaml}]\n": "config not found",
+    }
+    for text, message in cases.items():
+        bad = tmp_path / "bad.yaml"
+        bad.write_text(text)
+        with pytest.raises((ValueError, FileNotFoundError), match=message) as error:
+            load_config(bad)
+        assert "\n" not in str(error.value)
+
+
+def test_an_ensemble_trains_each_member_and_a_resume_reads_finished_members_back(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from gldt_core.training import second_stage
+
+    torch.set_num_threads(1)
+    about = {"crop_spec": {"context": 3.0}, "fit_clips": ["V_DRONE_001"], "calibration_clips": ["V_DRONE_002"]}
+    monkeypatch.setattr(
+        second_stage, "training_crops", lambda config, progress=True: (toy_crops(96), toy_crops(64, 2), about)
+    )
+    config = load_config(ensemble_config(tmp_path))
+    out = tmp_path / "run"
+    with pytest.raises(ResumeError, match="not an ensemble's run directory"):
+        second_stage.train_second_stage(config, resume=out, progress=False)
+    assert not out.exists()
+    path = second_stage.train_second_stage(config, progress=False)
+    assert path == out / "second_stage.onnx"
+    card = json.loads(path.with_suffix(".json").read_text())
+    assert [len(member["log"]) for member in card["training"]["members"]] == [4, 4]
+    assert card["training"]["epochs"] == 4 and card["calibration"]["slope"] > 0
+    before = {name: (out / name / "last.pt").read_bytes() for name in ("member_0", "member_1")}
+    frame = np.full((128, 128, 3), 160, np.uint8)
+    frame[56:72, 56:72] = 20
+    candidates = np.array([[58.0, 58, 70, 70, 0.4, 1], [10, 10, 30, 30, 0.3, 1]])
+    rows = SecondStage(path, score_threshold=0.0).rescore(frame, frame, candidates)
+    again = second_stage.train_second_stage(config, resume=out, progress=False)  # both members finished
+    assert {name: (out / name / "last.pt").read_bytes() for name in before} == before
+    np.testing.assert_allclose(SecondStage(again, score_threshold=0.0).rescore(frame, frame, candidates), rows)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(ResumeError, match="holds no member_N/last.pt"):
+        second_stage.train_second_stage(config, resume=empty, progress=False)

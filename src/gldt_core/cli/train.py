@@ -16,7 +16,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--resume",
         default=None,
-        help="continue the run whose last.pt this is (weights, optimiser, schedule, data order, time spent)",
+        help="continue the run whose last.pt this is (weights, optimiser, schedule, data order, time spent); "
+        "for a second-stage ensemble, its run directory",
     )
     parser.add_argument(
         "--init-from",
@@ -94,11 +95,13 @@ def _run(args: argparse.Namespace) -> int:
 
 def _run_second_stage(args: argparse.Namespace) -> int:
     try:
-        from gldt_core.training.second_stage import load_config, train_second_stage
+        from gldt_core.training.second_stage import ENSEMBLE_MEMBERS, load_config, train_second_stage
     except ImportError as error:  # torch is an optional extra
         raise ValueError(f"training needs torch (pip install torch==2.13.0 onnx): {error}") from error
 
-    config = _with_common_overrides(load_config(args.config), args)
+    config = load_config(args.config)
+    for member in config.get(ENSEMBLE_MEMBERS, [config]):  # an ensemble's overrides go to each member
+        _with_common_overrides(member, args)
     for name in ("steps_per_epoch", "device", "workers", "init_from", "stop_after_s"):
         if getattr(args, name.replace("-", "_")) is not None:
             raise ValueError(f"--{name.replace('_', '-')} applies to the detectors, not the second stage")

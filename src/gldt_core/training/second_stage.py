@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -80,6 +81,9 @@ DEFAULTS: dict[str, Any] = {
     },
 }
 
+
+#: The key of an ensemble config that lists its members (:func:`load_config`).
+ENSEMBLE_MEMBERS = "members"
 
 #: Fewest optimiser steps the one-cycle schedule is defined for.
 MIN_STEPS = 10
@@ -157,6 +161,39 @@ class CropClassifier(nn.Module):
         """Class logits, quality logit and box correction (None without the correction head)."""
         out = self(crops, geometry)
         return out[0], out[1], out[2] if len(out) == 3 else None
+
+
+class CropClassifierEnsemble(nn.Module):
+    """Several :class:`CropClassifier` as one model with the same inputs and outputs: the mean of
+    the members' class log-probabilities (as logits: their normalised geometric mean) and of their
+    quality logits. Members that differ in seed or in how they see a crop (``input_norm``, grey
+    crops) err on different clips, and the calibration is fitted on the mean. Members that correct
+    boxes are refused: the ensemble averages classes and box quality only."""
+
+    def __init__(self, members: Sequence[CropClassifier]) -> None:
+        super().__init__()
+        if len(members) < 2:
+            raise ValueError(f"an ensemble needs at least two members, got {len(members)}")
+        if any(member.correction is not None for member in members):
+            raise ValueError("ensemble members cannot correct boxes (model.box_correction)")
+        self.members = nn.ModuleList(members)
+        self.correction: nn.Sequential | None = None
+
+    def forward(self, crops: torch.Tensor, geometry: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        outputs = [member(crops, geometry) for member in self.members]
+        log_probabilities = torch.stack([torch.log_softmax(out[0], dim=1) for out in outputs]).mean(dim=0)
+        return log_probabilities, torch.stack([out[1] for out in outputs]).mean(dim=0)
+
+    def outputs(
+        self, crops: torch.Tensor, geometry: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Class logits and quality logit as :meth:`CropClassifier.outputs`; no box correction."""
+        log_probabilities, quality = self(crops, geometry)
+        return log_probabilities, quality, None
+
+
+#: What the calibration, the figures and the export take: one classifier or an ensemble of them.
+Classifier = CropClassifier | CropClassifierEnsemble
 
 
 def split_for_calibration(clips: list[str], period: int) -> tuple[list[str], list[str]]:
@@ -331,7 +368,7 @@ def _save(path: Path, payload: dict[str, Any]) -> None:
     tmp.replace(path)
 
 
-def predict(model: CropClassifier, crops: CropSet, batch: int = 512) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def predict(model: Classifier, crops: CropSet, batch: int = 512) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Class logits ``(N, 4)``, quality logits ``(N,)`` and corrected boxes ``(N, 4)`` (in the
     terms of :func:`~gldt_core.detect.second_stage.encode_boxes`) of a crop set, in eval mode."""
     model.eval()
@@ -346,7 +383,7 @@ def predict(model: CropClassifier, crops: CropSet, batch: int = 512) -> tuple[np
     return np.concatenate(logits), np.concatenate(quality), np.concatenate(corrected)
 
 
-def box_iou_after(model: CropClassifier, crops: CropSet, corrected: np.ndarray) -> np.ndarray:
+def box_iou_after(model: Classifier, crops: CropSet, corrected: np.ndarray) -> np.ndarray:
     """``(N,)`` each crop's box IoU with its object's annotated box after the model's correction
     (the stored IoU where the model corrects nothing; 0 on background)."""
     if model.correction is None:
@@ -354,7 +391,7 @@ def box_iou_after(model: CropClassifier, crops: CropSet, corrected: np.ndarray) 
     return np.where(crops.labels > 0, encoded_iou(corrected, crops.target), 0.0)
 
 
-def calibrate(model: CropClassifier, crops: CropSet) -> dict[str, Any]:
+def calibrate(model: Classifier, crops: CropSet) -> dict[str, Any]:
     """Fit the logistic calibration on the detector candidates of the calibration clips.
 
     A candidate is positive when it sits on a drone and its corrected box overlaps the drone's
@@ -402,7 +439,7 @@ def expected_calibration_error(probability: np.ndarray, outcome: np.ndarray, bin
     return float(total / max(len(probability), 1))
 
 
-def evaluate(model: CropClassifier, crops: CropSet) -> dict[str, float]:
+def evaluate(model: Classifier, crops: CropSet) -> dict[str, float]:
     """Accuracy, recall per class, the box-quality error on drones and the drones' boxes against
     their annotations before and after the correction, for the card and the log."""
     logits, quality, corrected = predict(model, crops)
@@ -427,19 +464,77 @@ def evaluate(model: CropClassifier, crops: CropSet) -> dict[str, float]:
 def train_second_stage(
     config: dict[str, Any], out_dir: Path | None = None, resume: Path | None = None, progress: bool = True
 ) -> Path:
-    """Train (or resume) the classifier, calibrate it, export ``second_stage.onnx``; returns the ONNX path."""
-    from gldt_core.detect.shipped import DEFAULT_GLOBAL_MODEL, DEFAULT_LOCAL_MODEL
-    from gldt_core.paths import halmstad_root
-
+    """Train (or resume) the classifier, calibrate it, export ``second_stage.onnx``; returns the ONNX
+    path (``last.pt`` where ``train.max_wall_s`` stopped the run). An ensemble config
+    (:func:`load_config`) goes to :func:`train_ensemble`."""
+    if ENSEMBLE_MEMBERS in config:
+        return train_ensemble(config, out_dir, resume, progress)
     checkpoint = load_resume(resume, config) if resume is not None else None  # before anything is written
     out = Path(out_dir or config["out_dir"])
     torch.set_num_threads(int(config["threads"]))
+    check_member(config)
+    fit_set, calibration_set, about = training_crops(config, progress)
+    fitted = fit_classifier(config, fit_set, calibration_set, out, checkpoint, progress)
+    if fitted is None:
+        return out / "last.pt"
+    model, history = fitted
+    return calibrate_and_export(model, calibration_set, {"config": config, **about, **history}, out)
+
+
+def train_ensemble(
+    config: dict[str, Any], out_dir: Path | None = None, resume: Path | None = None, progress: bool = True
+) -> Path:
+    """Train (or resume) each member of an ensemble config into ``member_N/`` of the run
+    directory, then calibrate the :class:`CropClassifierEnsemble` of them and export it as one
+    ``second_stage.onnx``. ``resume`` is the run directory: each member goes on from its
+    ``member_N/last.pt`` where there is one (a finished member is only read back)."""
+    members = config[ENSEMBLE_MEMBERS]
+    checkpoints: list[dict[str, Any] | None] = [None] * len(members)
+    if resume is not None:  # before anything is written
+        folder = Path(resume)
+        if not folder.is_dir():
+            raise ResumeError(f"cannot resume: {folder} is not an ensemble's run directory (member_N/last.pt in it)")
+        found = [folder / f"member_{i}" / "last.pt" for i in range(len(members))]
+        if not any(path.is_file() for path in found):
+            raise ResumeError(f"cannot resume: {folder} holds no member_N/last.pt")
+        checkpoints = [load_resume(path, member) if path.is_file() else None for path, member in zip(found, members)]
+    out = Path(out_dir or config["out_dir"])
+    torch.set_num_threads(int(members[0]["threads"]))
+    for member in members:
+        check_member(member)
+    # The members share their crops (load_config checks that their data sections agree).
+    fit_set, calibration_set, about = training_crops(members[0], progress)
+    models, histories = [], []
+    for index, (member, checkpoint) in enumerate(zip(members, checkpoints)):
+        fitted = fit_classifier(member, fit_set, calibration_set, out / f"member_{index}", checkpoint, progress, out)
+        if fitted is None:
+            return out / f"member_{index}" / "last.pt"
+        models.append(fitted[0])
+        histories.append({"config": member, **fitted[1]})
+    training = {
+        **about,
+        "members": histories,
+        "epochs": min(history["epochs"] for history in histories),
+        "cpu_seconds_total": round(sum(history["cpu_seconds_total"] for history in histories), 1),
+    }
+    return calibrate_and_export(CropClassifierEnsemble(models), calibration_set, training, out)
+
+
+def check_member(config: dict[str, Any]) -> None:
+    """A config's model and training options, checked before any crop is cut."""
+    focal_gamma(config)
+    colour_augmentation(config)
+    CropClassifier(**config["model"])
+
+
+def training_crops(config: dict[str, Any], progress: bool = True) -> tuple[CropSet, CropSet, dict[str, Any]]:
+    """The fit and calibration crops of a config, and what the model card says of them."""
+    from gldt_core.detect.shipped import DEFAULT_GLOBAL_MODEL, DEFAULT_LOCAL_MODEL
+    from gldt_core.paths import halmstad_root
+
     data = config["data"]
     root = Path(data["halmstad_root"] or halmstad_root())
     spec = CropSpec(**data["crops"])
-    focal_gamma(config)  # checked before the crops are cut
-    colour_augmentation(config)
-    CropClassifier(**config["model"])
     global_model = Path(data["global_model"] or DEFAULT_GLOBAL_MODEL)
     local_model = Path(data["local_model"] or DEFAULT_LOCAL_MODEL)
     fit_clips, calibration_clips = split_for_calibration(halmstad_split(root)["train"], int(data["calibration_period"]))
@@ -456,29 +551,28 @@ def train_second_stage(
     )
     is_fit = np.isin(np.asarray(crops.clip_names)[crops.clips], fit_clips + [scene.name for scene in scenes])
     fit_set, calibration_set = crops.subset(is_fit), crops.subset(~is_fit)
+    about = {
+        "crop_spec": asdict(spec),
+        "fit_clips": fit_clips,
+        "fit_scenes": [scene.name for scene in scenes],
+        "calibration_clips": calibration_clips,
+        "crops": {"fit": len(fit_set), "calibration": len(calibration_set)},
+        "candidate_models": [global_model.name, local_model.name],
+    }
+    return fit_set, calibration_set, about
 
-    fitted = fit_classifier(config, fit_set, calibration_set, out, checkpoint, progress)
-    if fitted is None:
-        return out / "last.pt"
-    model, history = fitted
+
+def calibrate_and_export(model: Classifier, calibration_set: CropSet, training: dict[str, Any], out: Path) -> Path:
+    """Fit the calibration of a trained ``model``, then write ``out/second_stage.onnx`` and its card."""
     card = {
         "kind": "second_stage",
         "classes": list(CLASS_NAMES),
         "crop_size": CROP_SIZE,
-        "context": spec.context,
+        "context": float(training["crop_spec"]["context"]),
         "min_side": MIN_SIDE,
         "calibration": calibrate(model, calibration_set),
         "calibration_clip_figures": evaluate(model, calibration_set),
-        "training": {
-            "config": config,
-            "crop_spec": asdict(spec),
-            "fit_clips": fit_clips,
-            "fit_scenes": [scene.name for scene in scenes],
-            "calibration_clips": calibration_clips,
-            "crops": {"fit": len(fit_set), "calibration": len(calibration_set)},
-            "candidate_models": [global_model.name, local_model.name],
-            **history,
-        },
+        "training": training,
     }
     return export_second_stage(model, out / "second_stage.onnx", card)
 
@@ -490,10 +584,11 @@ def fit_classifier(
     out: Path,
     checkpoint: dict[str, Any] | None = None,
     progress: bool = True,
+    resume_from: Path | None = None,
 ) -> tuple[CropClassifier, dict[str, Any]] | None:
     """Train on ``fit_set`` for ``train.epochs`` (from ``checkpoint``'s epoch when given), writing
     ``out/last.pt`` after every epoch; returns the model and its history, or None when
-    ``train.max_wall_s`` stopped it early (resume from ``last.pt``)."""
+    ``train.max_wall_s`` stopped it early (resume from ``resume_from``, by default ``out/last.pt``)."""
     seed = int(config["seed"])
     torch.manual_seed(seed)
     model = CropClassifier(**config["model"])
@@ -593,12 +688,15 @@ def fit_classifier(
             and time.perf_counter() - session_start > float(max_wall)
             and epoch < int(tcfg["epochs"])
         ):
-            print(f"[second-stage] stopped after epoch {epoch} (max_wall_s); resume with --resume {out / 'last.pt'}")
+            print(
+                f"[second-stage] stopped after epoch {epoch} (max_wall_s); "
+                f"resume with --resume {resume_from or out / 'last.pt'}"
+            )
             return None
     return model, {"epochs": epoch, "cpu_seconds_total": round(wall_total, 1), "log": log}
 
 
-def export_second_stage(model: CropClassifier, path: Path, card: dict[str, Any]) -> Path:
+def export_second_stage(model: Classifier, path: Path, card: dict[str, Any]) -> Path:
     """Write the ONNX model and its sidecar card; checks onnxruntime against torch first."""
     import onnxruntime as ort
 
@@ -629,7 +727,12 @@ def export_second_stage(model: CropClassifier, path: Path, card: dict[str, Any])
 
 
 def load_config(path: Path | str) -> dict[str, Any]:
-    """The YAML config over :data:`DEFAULTS`; unknown keys are refused with their path."""
+    """The YAML config over :data:`DEFAULTS`; unknown keys are refused with their path.
+
+    An ensemble config has ``members`` (and optionally ``out_dir``): each member a mapping with
+    ``config``, a second-stage config's path relative to the ensemble's file, and any keys of that
+    config to change for this member. It loads as ``{"out_dir": ..., "members": [config, ...]}``;
+    the members must cut the same crops (their ``data`` sections agree)."""
     import yaml
 
     from gldt_core.training.train import merge_config
@@ -640,4 +743,27 @@ def load_config(path: Path | str) -> dict[str, Any]:
     loaded = yaml.safe_load(path.read_text()) or {}
     if not isinstance(loaded, dict):
         raise ValueError(f"{path}: expected a mapping at the top level")
-    return merge_config(json.loads(json.dumps(DEFAULTS)), loaded)
+    if ENSEMBLE_MEMBERS not in loaded:
+        return merge_config(json.loads(json.dumps(DEFAULTS)), loaded)
+    unknown = sorted(set(loaded) - {ENSEMBLE_MEMBERS, "out_dir"})
+    if unknown:
+        raise ValueError(f"{path}: an ensemble config has only members and out_dir, not {', '.join(unknown)}")
+    entries = loaded[ENSEMBLE_MEMBERS]
+    if not isinstance(entries, list) or len(entries) < 2:
+        raise ValueError(f"{path}: members must list at least two member configs")
+    members: list[dict[str, Any]] = []
+    for index, entry in enumerate(entries):
+        if not isinstance(entry, dict) or not isinstance(entry.get("config"), str):
+            raise ValueError(f"{path}: members[{index}] must be a mapping with config: PATH (and keys to change)")
+        member = load_config(path.parent / entry["config"])
+        if ENSEMBLE_MEMBERS in member:
+            raise ValueError(f"{path}: members[{index}] is an ensemble itself")
+        member = merge_config(member, {key: value for key, value in entry.items() if key != "config"})
+        if member["model"].get("box_correction"):
+            raise ValueError(f"{path}: members[{index}] corrects boxes, which an ensemble cannot average")
+        if members and member["data"] != members[0]["data"]:
+            raise ValueError(
+                f"{path}: members[{index}]'s data section differs from members[0]'s; they share one crop set"
+            )
+        members.append(member)
+    return {"out_dir": str(loaded.get("out_dir", "runs/second_stage_ensemble")), ENSEMBLE_MEMBERS: members}
