@@ -197,6 +197,8 @@ def test_every_shipped_training_config_loads() -> None:
     assert len(names) >= 10
     for path in names:
         if path.name.startswith("second_stage"):
-            second_stage.CropClassifier(**second_stage.load_config(path)["model"])
+            config = second_stage.load_config(path)
+            for member in config.get(second_stage.ENSEMBLE_MEMBERS, [config]):  # an ensemble: each member
+                second_stage.CropClassifier(**member["model"])
             continue
         spec_for_task("local" if path.name.startswith("local") else "global", load_config(path))
