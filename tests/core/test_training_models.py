@@ -199,6 +199,6 @@ def test_every_shipped_training_config_loads() -> None:
         if path.name.startswith("second_stage"):
             config = second_stage.load_config(path)
             for member in config.get(second_stage.ENSEMBLE_MEMBERS, [config]):  # an ensemble: each member
-                second_stage.CropClassifier(**member["model"])
+                second_stage.check_member(member)  # its model, its options and any teacher it learns from
             continue
         spec_for_task("local" if path.name.startswith("local") else "global", load_config(path))

@@ -545,3 +545,185 @@ def test_an_ensemble_trains_each_member_and_a_resume_reads_finished_members_back
     empty.mkdir()
     with pytest.raises(ResumeError, match="holds no member_N/last.pt"):
         second_stage.train_second_stage(config, resume=empty, progress=False)
+
+
+def test_the_distillation_loss_mixes_cross_entropy_with_the_kl_from_the_teacher_and_iou_with_its_quality() -> None:
+    from gldt_core.training.second_stage import losses
+
+    torch.manual_seed(0)
+    logits, quality = torch.randn(6, 4), torch.randn(6, 1)
+    labels, iou = torch.tensor([0, 1, 2, 3, 1, 1]), torch.rand(6)
+    batch = (labels, torch.zeros(6, 4), torch.zeros(6, 4), iou)
+    weights = torch.ones(4)
+    teacher_probabilities = torch.softmax(torch.randn(6, 4), dim=1)
+    teacher_iou = torch.rand(6)
+    plain_ce, plain_bce, _ = losses((logits, quality, None), batch, weights, (1.0, 1.0))
+    for weight, temperature in ((0.5, 2.0), (1.0, 1.0), (0.25, 4.0)):
+        ce, bce, _ = losses(
+            (logits, quality, None),
+            batch,
+            weights,
+            (1.0, 1.0),
+            teacher=(torch.log(teacher_probabilities), teacher_iou),
+            distill=(weight, temperature),
+        )
+        student = torch.softmax(logits / temperature, dim=1)
+        kl = (teacher_probabilities * (torch.log(teacher_probabilities) - torch.log(student))).sum(dim=1).mean()
+        torch.testing.assert_close(ce, (1 - weight) * plain_ce + weight * temperature**2 * kl)
+        target = (1 - weight) * iou + weight * teacher_iou
+        torch.testing.assert_close(
+            bce, torch.nn.functional.binary_cross_entropy_with_logits(quality.reshape(-1), target)
+        )
+    # A student that already answers as its teacher at temperature 1 has nothing left to learn from it.
+    itself = (torch.log_softmax(logits, 1), iou)
+    ce, _, _ = losses((logits, quality, None), batch, weights, (1.0, 1.0), teacher=itself, distill=(1.0, 1.0))
+    assert float(ce) == pytest.approx(0.0, abs=1e-6)
+
+
+def clipped_crops(count: int = 128, seed: int = 0) -> CropSet:
+    """Toy crops spread over four clips of two categories, so that they fall into two folds."""
+    crops = toy_crops(count, seed)
+    crops.clips = np.arange(count, dtype=np.int32) % 4
+    crops.clip_names = ["V_DRONE_001", "V_BIRD_001", "V_DRONE_002", "V_BIRD_002"]
+    return crops
+
+
+def teacher_config_file(tmp_path: Path, text: str = "") -> Path:
+    """A tiny second-stage config (``text`` appended) for a student to learn from."""
+    path = tmp_path / "teacher.yaml"
+    path.write_text(
+        f"model: {{channels: [4, 4, 8, 8], hidden: 8}}\ntrain: {{epochs: 4, batch_size: 16, lr: 0.01}}\n{text}"
+    )
+    return path
+
+
+def distilled_config(teacher: Path | None, weight: float, epochs: int = 4) -> dict:
+    config = tiny_config(epochs)
+    config["train"].update(
+        {"teacher": None if teacher is None else str(teacher), "distill_weight": weight, "distill_temperature": 2.0}
+    )
+    return config
+
+
+def test_clips_are_dealt_into_folds_by_category() -> None:
+    from gldt_core.training.second_stage import clip_folds
+
+    crops = clipped_crops(12)
+    crops.clip_names = ["V_DRONE_003", "V_BIRD_001", "V_DRONE_001", "V_BIRD_002"]
+    folds = clip_folds(crops, 2)
+    by_clip = {crops.clip_names[c]: int(f) for c, f in zip(crops.clips, folds)}
+    assert by_clip == {"V_DRONE_001": 0, "V_DRONE_003": 1, "V_BIRD_001": 0, "V_BIRD_002": 1}
+    # Only the clips with crops in the set are dealt: a fit set's clip_names also name the
+    # calibration clips (every fifth), which would otherwise all fall into one fold.
+    fit = toy_crops(32)
+    fit.clip_names = [f"V_DRONE_{i:03d}" for i in range(20)]
+    fit.clips = np.repeat([c for c in range(20) if c % 5], 2).astype(np.int32)  # 16 clips, 2 crops each
+    assert np.bincount(clip_folds(fit, 5), minlength=5).tolist() == [8, 6, 6, 6, 6]
+
+
+def test_each_fold_is_answered_by_a_teacher_trained_on_the_other_folds_only(tmp_path: Path) -> None:
+    from gldt_core.training.second_stage import clip_folds, out_of_fold_answers, teacher_answers
+
+    torch.set_num_threads(1)
+    fit, calibration = clipped_crops(), toy_crops(16, 1)
+    config = distilled_config(teacher_config_file(tmp_path), 0.5)
+    answers = out_of_fold_answers(config, fit, calibration, tmp_path / "run", progress=False)
+    assert answers is not None and answers[2] > 0
+    folds = clip_folds(fit, 2)
+    teacher = load_config(config["train"]["teacher"])
+    for k in (0, 1):
+        alone = fit_classifier(teacher, fit.subset(folds != k), calibration, tmp_path / f"alone_{k}", progress=False)
+        assert alone is not None
+        expected = teacher_answers(alone[0], fit.subset(folds == k), 2.0)
+        np.testing.assert_allclose(answers[0][folds == k], expected[0], atol=1e-6)
+        np.testing.assert_allclose(answers[1][folds == k], expected[1], atol=1e-6)
+    assert (tmp_path / "run" / "teacher_fold_1" / "member_0" / "last.pt").is_file()
+    before = (tmp_path / "run" / "teacher_fold_0" / "member_0" / "last.pt").read_bytes()
+    again = out_of_fold_answers(config, fit, calibration, tmp_path / "run", progress=False)  # read back
+    assert again is not None and np.array_equal(again[0], answers[0])
+    assert (tmp_path / "run" / "teacher_fold_0" / "member_0" / "last.pt").read_bytes() == before
+
+
+def test_a_student_at_full_distillation_weight_learns_its_teachers_answers_not_the_labels(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from gldt_core.training import second_stage
+    from gldt_core.training.second_stage import predict
+
+    torch.set_num_threads(1)
+    fit, held_out = clipped_crops(), toy_crops(64, seed=5)
+    says_bird = np.log(np.full((len(fit.labels), 4), 0.01, np.float32))
+    says_bird[:, 2] = np.log(0.97)
+    monkeypatch.setattr(second_stage, "out_of_fold_answers", lambda *args, **kwargs: (says_bird, fit.quality, 7.0))
+    config = distilled_config(teacher_config_file(tmp_path), 1.0, epochs=6)
+    taught = fit_classifier(config, fit, toy_crops(16, 1), tmp_path / "taught", progress=False)
+    plain = fit_classifier(tiny_config(6), fit, toy_crops(16, 1), tmp_path / "plain", progress=False)
+    assert taught is not None and plain is not None
+    assert (predict(taught[0], held_out)[0].argmax(axis=1) == 2).mean() > 0.9
+    assert (predict(plain[0], held_out)[0].argmax(axis=1) == held_out.labels).mean() > 0.8
+    assert taught[1]["teacher"] == {"config": config["train"]["teacher"], "folds": 2, "cpu_seconds_total": 7.0}
+
+
+def test_bad_distillation_settings_and_teachers_are_refused_in_one_line_before_anything_is_written(
+    tmp_path: Path,
+) -> None:
+    from gldt_core.training.second_stage import check_member
+
+    good = teacher_config_file(tmp_path)
+    (tmp_path / "other_crops.yaml").write_text(good.read_text() + "data: {calibration_period: 3}\n")
+    (tmp_path / "correcting.yaml").write_text(good.read_text() + "model: {box_correction: true}\n")
+    (tmp_path / "taught.yaml").write_text(
+        good.read_text().replace("lr: 0.01}", f"lr: 0.01, teacher: {good}, distill_weight: 0.5}}")
+    )
+    correcting_student = distilled_config(good, 0.5)
+    correcting_student["model"]["box_correction"] = True
+    one_fold = distilled_config(good, 0.5)
+    one_fold["train"]["teacher_folds"] = 1
+    cold = distilled_config(good, 0.5)
+    cold["train"]["distill_temperature"] = 0
+    cases = [
+        (distilled_config(tmp_path / "missing.yaml", 0.5), "config not found"),
+        (distilled_config(tmp_path / "other_crops.yaml", 0.5), "cuts other crops"),
+        (distilled_config(tmp_path / "correcting.yaml", 0.5), "corrects boxes"),
+        (distilled_config(tmp_path / "taught.yaml", 0.5), "learns from a teacher itself"),
+        (distilled_config(good, 0.0), "go together"),
+        (distilled_config(None, 0.5), "go together"),
+        (distilled_config(good, 1.5), r"distill_weight must be in \[0, 1\]"),
+        (correcting_student, "cannot learn from a teacher"),
+        (one_fold, "teacher_folds must be an integer >= 2"),
+        (cold, "distill_temperature must be > 0"),
+    ]
+    for config, message in cases:
+        with pytest.raises((ValueError, FileNotFoundError), match=message) as error:
+            check_member(config)
+        assert "\n" not in str(error.value)
+        with pytest.raises((ValueError, FileNotFoundError), match=message):
+            fit_classifier(config, clipped_crops(48), toy_crops(8), tmp_path / "never", progress=False)
+    assert not (tmp_path / "never").exists()
+    student = tmp_path / "student.yaml"
+    student.write_text("train: {teacher: teacher.yaml, distill_weight: 0.5}\n")
+    assert load_config(student)["train"]["teacher"] == str(good)  # relative to the student's file
+    committed = load_config(Path(__file__).parents[2] / "src/gldt_core/configs/train/second_stage_distilled.yaml")
+    check_member(committed)
+
+
+def test_a_distilled_run_resumes_only_under_the_teacher_it_started_with(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    fit, calibration = clipped_crops(), toy_crops(24, seed=1)
+    config = distilled_config(teacher_config_file(tmp_path), 0.5, 3)
+    straight = fit_classifier(config, fit, calibration, tmp_path / "straight", progress=False)
+    stopped = distilled_config(teacher_config_file(tmp_path), 0.5, 3)
+    stopped["train"]["max_wall_s"] = 0.0  # the student's: it stops after its first epoch
+    assert fit_classifier(stopped, fit, calibration, tmp_path / "resumed", progress=False) is None
+    checkpoint = load_resume(tmp_path / "resumed" / "last.pt", stopped)
+    before = (tmp_path / "resumed" / "last.pt").read_bytes()
+    other = tmp_path / "other"
+    other.mkdir()
+    other_teacher = distilled_config(teacher_config_file(other, "seed: 5\n"), 0.5, 3)
+    with pytest.raises(ResumeError, match="learnt from another teacher") as error:
+        fit_classifier(other_teacher, fit, calibration, tmp_path / "resumed", checkpoint)
+    assert "\n" not in str(error.value) and (tmp_path / "resumed" / "last.pt").read_bytes() == before
+    resumed = fit_classifier(config, fit, calibration, tmp_path / "resumed", checkpoint, progress=False)
+    assert straight is not None and resumed is not None
+    for (name, a), b in zip(straight[0].state_dict().items(), resumed[0].state_dict().values()):
+        assert torch.equal(a, b), name

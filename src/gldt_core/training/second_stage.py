@@ -77,6 +77,18 @@ DEFAULTS: dict[str, Any] = {
         # The sky's colour differs from one recording day to the next and so from clip to clip.
         "colour_jitter": 0.0,
         "grayscale_p": 0.0,
+        # Distillation (opt-in, out_of_fold_answers()): teacher names a second-stage config (an
+        # ensemble's or a single one, a path relative to this config's file), trained here out of
+        # fold: the fit clips are dealt into teacher_folds folds and each fold's crops are answered
+        # by a teacher trained on the other folds, so that its answers are what it says of clips it
+        # has not seen. The class loss is then (1 - distill_weight) of the cross-entropy plus
+        # distill_weight of the KL divergence from the teacher's class probabilities at
+        # distill_temperature, and the box quality's target the same mix of the box's IoU and the
+        # teacher's predicted IoU.
+        "teacher": None,
+        "teacher_folds": 2,
+        "distill_weight": 0.0,
+        "distill_temperature": 2.0,
         "max_wall_s": None,
     },
 }
@@ -291,6 +303,110 @@ def colour_augmentation(config: dict[str, Any]) -> tuple[float, float]:
     return jitter, grayscale_p
 
 
+def distillation(config: dict[str, Any]) -> tuple[float, float]:
+    """``(train.distill_weight, train.distill_temperature)``, checked against ``train.teacher`` and
+    ``train.teacher_folds``; ValueError in one line where they disagree or are out of range."""
+    train = config["train"]
+    teacher = train["teacher"]
+    weight, temperature = _train_number(config, "distill_weight"), _train_number(config, "distill_temperature")
+    if teacher is not None and not isinstance(teacher, str):
+        raise ValueError(f"train.teacher must be a second-stage config's path, got {teacher!r}")
+    if not 0 <= weight <= 1:
+        raise ValueError(f"train.distill_weight must be in [0, 1], got {train['distill_weight']!r}")
+    if not temperature > 0:
+        raise ValueError(f"train.distill_temperature must be > 0, got {train['distill_temperature']!r}")
+    if (teacher is not None) != (weight > 0):
+        raise ValueError("train.teacher and train.distill_weight > 0 go together: give both or neither")
+    folds = train["teacher_folds"]
+    if isinstance(folds, bool) or not isinstance(folds, int) or folds < 2:
+        raise ValueError(f"train.teacher_folds must be an integer >= 2, got {folds!r}")
+    if teacher is not None and config["model"].get("box_correction"):
+        raise ValueError("a classifier that corrects boxes cannot learn from a teacher (it rates uncorrected boxes)")
+    return weight, temperature
+
+
+def teacher_members(config: dict[str, Any]) -> list[dict[str, Any]]:
+    """The configs of the classifiers that make ``train.teacher`` (one, or an ensemble's members);
+    [] without a teacher. ValueError in one line for a teacher that cuts other crops, corrects
+    boxes or learns from a teacher itself."""
+    path = config["train"]["teacher"]
+    if path is None:
+        return []
+    teacher = load_config(path)
+    members = teacher.get(ENSEMBLE_MEMBERS, [teacher])
+    for member in members:
+        if member["data"] != config["data"]:
+            raise ValueError(f"train.teacher {path} cuts other crops than this config (its data section differs)")
+        if member["model"].get("box_correction"):
+            raise ValueError(f"train.teacher {path} corrects boxes, so its quality rates other boxes")
+        if member["train"]["teacher"] is not None:
+            raise ValueError(f"train.teacher {path} learns from a teacher itself")
+        check_member(member)
+    return members
+
+
+def clip_folds(crops: CropSet, folds: int) -> np.ndarray:
+    """``(N,)`` the fold of each crop: the clips of each category (the name less its number) that
+    have crops here, in name order, dealt round the folds, so every fold holds clips of every
+    category."""
+    fold_of: dict[int, int] = {}
+    dealt: dict[str, int] = {}
+    present = np.unique(crops.clips).tolist()  # clip_names also names clips of other subsets
+    for index in sorted(present, key=lambda i: crops.clip_names[i]):
+        category = crops.clip_names[index].rsplit("_", 1)[0]
+        fold_of[index] = dealt.get(category, 0) % folds
+        dealt[category] = dealt.get(category, 0) + 1
+    return np.array([fold_of[int(clip)] for clip in crops.clips], dtype=np.int64).reshape(-1)
+
+
+def out_of_fold_answers(
+    config: dict[str, Any], fit_set: CropSet, calibration_set: CropSet, out: Path, progress: bool = True
+) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """What ``train.teacher`` says of each fit crop, trained without that crop's clip: for each
+    fold (:func:`clip_folds`), the teacher's members are trained on the other folds' crops into
+    ``out/teacher_fold_K/member_I`` and answer the fold's crops (:func:`teacher_answers`), and the
+    seconds all members trained for. A member whose ``last.pt`` there was written under the same
+    config is continued (a finished one is only read back). None without a teacher, or where a
+    member's ``train.max_wall_s`` stopped it."""
+    members = teacher_members(config)
+    if not members:
+        return None
+    temperature = distillation(config)[1]
+    fold = clip_folds(fit_set, int(config["train"]["teacher_folds"]))
+    log_probabilities = np.zeros((len(fold), NUM_CLASSES), np.float32)
+    predicted_iou = np.zeros(len(fold), np.float32)
+    seconds = 0.0
+    for k in range(int(config["train"]["teacher_folds"])):
+        held = fold == k
+        if not held.any() or held.all():
+            raise ValueError(
+                f"teacher fold {k} holds {int(held.sum())} of {len(held)} fit crops; every fold needs some"
+            )
+        models = []
+        for index, member in enumerate(members):
+            member_out = out / f"teacher_fold_{k}" / f"member_{index}"
+            checkpoint = None
+            if (member_out / "last.pt").is_file():
+                saved = read_checkpoint(member_out / "last.pt")
+                checkpoint = saved if saved.get("config") == member else None
+            fitted = fit_classifier(member, fit_set.subset(~held), calibration_set, member_out, checkpoint, progress)
+            if fitted is None:
+                return None
+            models.append(fitted[0])
+            seconds += fitted[1]["cpu_seconds_total"]
+        teacher = models[0] if len(models) == 1 else CropClassifierEnsemble(models)
+        log_probabilities[held], predicted_iou[held] = teacher_answers(teacher, fit_set.subset(held), temperature)
+    return log_probabilities, predicted_iou, seconds
+
+
+def teacher_answers(teacher: Classifier, crops: CropSet, temperature: float) -> tuple[np.ndarray, np.ndarray]:
+    """What ``teacher`` says of each crop (without augmentation), as the distillation's targets:
+    class log-probabilities at ``temperature`` ``(N, 4)`` and predicted IoU ``(N,)``."""
+    logits, quality, _ = predict(teacher, crops)
+    log_probabilities = torch.log_softmax(torch.from_numpy(logits) / temperature, dim=1).numpy()
+    return log_probabilities, (1.0 / (1.0 + np.exp(-quality))).astype(np.float32)
+
+
 def class_loss(
     logits: torch.Tensor, labels: torch.Tensor, class_weights: torch.Tensor, focal_gamma: float
 ) -> torch.Tensor:
@@ -312,6 +428,8 @@ def losses(
     weights: tuple[float, float],
     context: float = CONTEXT,
     focal_gamma: float = 0.0,
+    teacher: tuple[torch.Tensor, torch.Tensor] | None = None,
+    distill: tuple[float, float] = (0.0, 1.0),
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Class loss (:func:`class_loss`); binary cross-entropy of the quality logit against
     the box's IoU with its object's annotated box (0 on background); with a correction head, L1 of
@@ -319,7 +437,11 @@ def losses(
     the corrected box's IoU (held fixed). ``batch``: labels, geometry, annotated boxes (both
     :func:`~gldt_core.detect.second_stage.encode_boxes`), IoU of the uncorrected boxes. The L1
     weighs a centre offset (in crop sides) by the crops' ``context``, so that it counts in the box's
-    own sides, as the log width and height do."""
+    own sides, as the log width and height do. With ``teacher`` (:func:`teacher_answers` of the
+    batch) and ``distill`` ``(weight, temperature)`` (:func:`distillation`), the class loss is
+    ``(1 - weight)`` of the above plus ``weight`` of the KL divergence from the teacher's class
+    probabilities at the temperature (times its square, so its gradients keep their scale), and
+    the quality target the same mix of the IoU and the teacher's predicted IoU."""
     logits, quality, correction = outputs
     labels, geometry, target, iou = batch
     quality_weight, box_weight = weights
@@ -335,6 +457,13 @@ def losses(
         refined = np.zeros(len(labels), dtype=np.float32)
         refined[chosen] = encoded_iou(corrected.detach().numpy()[chosen], target.numpy()[chosen])
         iou = torch.from_numpy(refined)
+    if teacher is not None:
+        weight, temperature = distill
+        teacher_log_probabilities, teacher_iou = teacher
+        student = torch.log_softmax(logits / temperature, dim=1)
+        kl = nn.functional.kl_div(student, teacher_log_probabilities, reduction="batchmean", log_target=True)
+        ce = (1 - weight) * ce + weight * temperature**2 * kl
+        iou = (1 - weight) * iou + weight * teacher_iou
     bce = nn.functional.binary_cross_entropy_with_logits(quality.reshape(-1), iou)
     return ce, quality_weight * bce, box
 
@@ -524,7 +653,9 @@ def check_member(config: dict[str, Any]) -> None:
     """A config's model and training options, checked before any crop is cut."""
     focal_gamma(config)
     colour_augmentation(config)
+    distillation(config)
     CropClassifier(**config["model"])
+    teacher_members(config)
 
 
 def training_crops(config: dict[str, Any], progress: bool = True) -> tuple[CropSet, CropSet, dict[str, Any]]:
@@ -594,6 +725,8 @@ def fit_classifier(
     model = CropClassifier(**config["model"])
     tcfg = config["train"]
     gamma, context, colour = focal_gamma(config), crop_context(config), colour_augmentation(config)
+    distill = distillation(config)
+    teacher = {"members": teacher_members(config), "folds": config["train"]["teacher_folds"]}
     optimizer = torch.optim.AdamW(model.parameters(), lr=float(tcfg["lr"]), weight_decay=float(tcfg["weight_decay"]))
     batch = int(tcfg["batch_size"])
     steps_per_epoch = math.ceil(len(fit_set) / batch)
@@ -615,6 +748,11 @@ def fit_classifier(
                 f"cannot resume: the checkpoint was scheduled for {checkpoint.get('total_steps')} steps, "
                 f"this config and crop set give {total_steps}"
             )
+        if checkpoint.get("teacher", {"members": [], "folds": teacher["folds"]}) != teacher:
+            raise ResumeError(
+                "cannot resume: the checkpoint learnt from another teacher than this config's "
+                f"{config['train']['teacher']}"
+            )
         try:
             model.load_state_dict(checkpoint["model"])
             optimizer.load_state_dict(checkpoint["optimizer"])
@@ -624,6 +762,9 @@ def fit_classifier(
             raise ResumeError(
                 f"cannot resume: the checkpoint's state does not fit ({type(error).__name__}: {error})"
             ) from None
+    answers = out_of_fold_answers(config, fit_set, calibration_set, out, progress) if teacher["members"] else None
+    if teacher["members"] and answers is None:
+        return None  # a teacher's train.max_wall_s stopped it
     out.mkdir(parents=True, exist_ok=True)
     max_wall = tcfg.get("max_wall_s")
     session_start = time.perf_counter()
@@ -649,6 +790,8 @@ def fit_classifier(
                 (float(tcfg["quality_weight"]), float(tcfg["box_weight"])),
                 context,
                 gamma,
+                None if answers is None else (torch.from_numpy(answers[0][idx]), torch.from_numpy(answers[1][idx])),
+                distill,
             )
             optimizer.zero_grad()
             (ce + quality + box).backward()
@@ -679,6 +822,7 @@ def fit_classifier(
                 "scheduler": scheduler.state_dict(),
                 "epoch": epoch,
                 "total_steps": total_steps,
+                "teacher": teacher,
                 "wall_s": wall_total,
                 "log": log,
             },
@@ -693,7 +837,14 @@ def fit_classifier(
                 f"resume with --resume {resume_from or out / 'last.pt'}"
             )
             return None
-    return model, {"epochs": epoch, "cpu_seconds_total": round(wall_total, 1), "log": log}
+    history: dict[str, Any] = {"epochs": epoch, "cpu_seconds_total": round(wall_total, 1), "log": log}
+    if answers is not None:
+        history["teacher"] = {
+            "config": config["train"]["teacher"],
+            "folds": teacher["folds"],
+            "cpu_seconds_total": round(answers[2], 1),
+        }
+    return model, history
 
 
 def export_second_stage(model: Classifier, path: Path, card: dict[str, Any]) -> Path:
@@ -744,7 +895,10 @@ def load_config(path: Path | str) -> dict[str, Any]:
     if not isinstance(loaded, dict):
         raise ValueError(f"{path}: expected a mapping at the top level")
     if ENSEMBLE_MEMBERS not in loaded:
-        return merge_config(json.loads(json.dumps(DEFAULTS)), loaded)
+        config = merge_config(json.loads(json.dumps(DEFAULTS)), loaded)
+        if isinstance(config["train"]["teacher"], str):  # a path relative to this file, as members' are
+            config["train"]["teacher"] = str(path.parent / config["train"]["teacher"])
+        return config
     unknown = sorted(set(loaded) - {ENSEMBLE_MEMBERS, "out_dir"})
     if unknown:
         raise ValueError(f"{path}: an ensemble config has only members and out_dir, not {', '.join(unknown)}")
