@@ -622,12 +622,13 @@ def test_clips_are_dealt_into_folds_by_category() -> None:
 
 
 def test_each_fold_is_answered_by_a_teacher_trained_on_the_other_folds_only(tmp_path: Path) -> None:
-    from gldt_core.training.second_stage import clip_folds, out_of_fold_answers, teacher_answers
+    from gldt_core.training.second_stage import clip_folds, out_of_fold_answers, teacher_answers, teacher_members
 
     torch.set_num_threads(1)
     fit, calibration = clipped_crops(), toy_crops(16, 1)
     config = distilled_config(teacher_config_file(tmp_path), 0.5)
-    answers = out_of_fold_answers(config, fit, calibration, tmp_path / "run", progress=False)
+    members = teacher_members(config)
+    answers = out_of_fold_answers(members, 2, 2.0, fit, calibration, tmp_path / "run", progress=False)
     assert answers is not None and answers[2] > 0
     folds = clip_folds(fit, 2)
     teacher = load_config(config["train"]["teacher"])
@@ -639,7 +640,7 @@ def test_each_fold_is_answered_by_a_teacher_trained_on_the_other_folds_only(tmp_
         np.testing.assert_allclose(answers[1][folds == k], expected[1], atol=1e-6)
     assert (tmp_path / "run" / "teacher_fold_1" / "member_0" / "last.pt").is_file()
     before = (tmp_path / "run" / "teacher_fold_0" / "member_0" / "last.pt").read_bytes()
-    again = out_of_fold_answers(config, fit, calibration, tmp_path / "run", progress=False)  # read back
+    again = out_of_fold_answers(members, 2, 2.0, fit, calibration, tmp_path / "run", progress=False)  # read back
     assert again is not None and np.array_equal(again[0], answers[0])
     assert (tmp_path / "run" / "teacher_fold_0" / "member_0" / "last.pt").read_bytes() == before
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -208,16 +208,23 @@ class CropClassifierEnsemble(nn.Module):
 Classifier = CropClassifier | CropClassifierEnsemble
 
 
+def places_in_category(names: Iterable[str], category: Callable[[str], str]) -> dict[str, int]:
+    """Each name's place (0, 1, 2, ...) among the names of its ``category``, in name order: what
+    dealing the clips of each category round a number of piles counts."""
+    places: dict[str, int] = {}
+    seen: dict[str, int] = {}
+    for name in sorted(names):
+        kind = category(name)
+        places[name] = seen.get(kind, 0)
+        seen[kind] = places[name] + 1
+    return places
+
+
 def split_for_calibration(clips: list[str], period: int) -> tuple[list[str], list[str]]:
     """(fit clips, calibration clips): every ``period``-th clip of each category, from the first, calibrates."""
-    fit: list[str] = []
-    calibration: list[str] = []
-    by_category: dict[str, list[str]] = {}
-    for clip in sorted(clips):
-        by_category.setdefault(clip_category(clip), []).append(clip)
-    for names in by_category.values():
-        for i, name in enumerate(names):
-            (calibration if i % period == 0 else fit).append(name)
+    places = places_in_category(clips, clip_category)
+    fit = [clip for clip in sorted(clips) if places[clip] % period]
+    calibration = [clip for clip in sorted(clips) if places[clip] % period == 0]
     return fit, calibration
 
 
@@ -349,34 +356,32 @@ def clip_folds(crops: CropSet, folds: int) -> np.ndarray:
     """``(N,)`` the fold of each crop: the clips of each category (the name less its number) that
     have crops here, in name order, dealt round the folds, so every fold holds clips of every
     category."""
-    fold_of: dict[int, int] = {}
-    dealt: dict[str, int] = {}
-    present = np.unique(crops.clips).tolist()  # clip_names also names clips of other subsets
-    for index in sorted(present, key=lambda i: crops.clip_names[i]):
-        category = crops.clip_names[index].rsplit("_", 1)[0]
-        fold_of[index] = dealt.get(category, 0) % folds
-        dealt[category] = dealt.get(category, 0) + 1
+    present = [crops.clip_names[index] for index in np.unique(crops.clips)]  # clip_names names other subsets' too
+    places = places_in_category(present, lambda name: name.rsplit("_", 1)[0])  # synthetic scenes too
+    fold_of = {crops.clip_names.index(name): place % folds for name, place in places.items()}
     return np.array([fold_of[int(clip)] for clip in crops.clips], dtype=np.int64).reshape(-1)
 
 
 def out_of_fold_answers(
-    config: dict[str, Any], fit_set: CropSet, calibration_set: CropSet, out: Path, progress: bool = True
+    members: list[dict[str, Any]],
+    folds: int,
+    temperature: float,
+    fit_set: CropSet,
+    calibration_set: CropSet,
+    out: Path,
+    progress: bool = True,
 ) -> tuple[np.ndarray, np.ndarray, float] | None:
-    """What ``train.teacher`` says of each fit crop, trained without that crop's clip: for each
-    fold (:func:`clip_folds`), the teacher's members are trained on the other folds' crops into
-    ``out/teacher_fold_K/member_I`` and answer the fold's crops (:func:`teacher_answers`), and the
-    seconds all members trained for. A member whose ``last.pt`` there was written under the same
-    config is continued (a finished one is only read back). None without a teacher, or where a
-    member's ``train.max_wall_s`` stopped it."""
-    members = teacher_members(config)
-    if not members:
-        return None
-    temperature = distillation(config)[1]
-    fold = clip_folds(fit_set, int(config["train"]["teacher_folds"]))
+    """What a teacher made of ``members`` (:func:`teacher_members`) says of each fit crop, trained
+    without that crop's clip: for each of ``folds`` folds (:func:`clip_folds`), the members are
+    trained on the other folds' crops into ``out/teacher_fold_K/member_I`` and answer the fold's
+    crops at ``temperature`` (:func:`teacher_answers`); also the seconds all members trained for.
+    A member whose ``last.pt`` there was written under the same config is continued (a finished
+    one is only read back). None where a member's ``train.max_wall_s`` stopped it."""
+    fold = clip_folds(fit_set, folds)
     log_probabilities = np.zeros((len(fold), NUM_CLASSES), np.float32)
     predicted_iou = np.zeros(len(fold), np.float32)
     seconds = 0.0
-    for k in range(int(config["train"]["teacher_folds"])):
+    for k in range(folds):
         held = fold == k
         if not held.any() or held.all():
             raise ValueError(
@@ -726,7 +731,9 @@ def fit_classifier(
     tcfg = config["train"]
     gamma, context, colour = focal_gamma(config), crop_context(config), colour_augmentation(config)
     distill = distillation(config)
-    teacher = {"members": teacher_members(config), "folds": config["train"]["teacher_folds"]}
+    members, folds = teacher_members(config), int(tcfg["teacher_folds"])
+    # What the checkpoint records of the teacher, so a resume under another one is refused.
+    teacher = {"members": members, "folds": folds} if members else None
     optimizer = torch.optim.AdamW(model.parameters(), lr=float(tcfg["lr"]), weight_decay=float(tcfg["weight_decay"]))
     batch = int(tcfg["batch_size"])
     steps_per_epoch = math.ceil(len(fit_set) / batch)
@@ -748,7 +755,7 @@ def fit_classifier(
                 f"cannot resume: the checkpoint was scheduled for {checkpoint.get('total_steps')} steps, "
                 f"this config and crop set give {total_steps}"
             )
-        if checkpoint.get("teacher", {"members": [], "folds": teacher["folds"]}) != teacher:
+        if checkpoint.get("teacher") != teacher:
             raise ResumeError(
                 "cannot resume: the checkpoint learnt from another teacher than this config's "
                 f"{config['train']['teacher']}"
@@ -762,9 +769,11 @@ def fit_classifier(
             raise ResumeError(
                 f"cannot resume: the checkpoint's state does not fit ({type(error).__name__}: {error})"
             ) from None
-    answers = out_of_fold_answers(config, fit_set, calibration_set, out, progress) if teacher["members"] else None
-    if teacher["members"] and answers is None:
-        return None  # a teacher's train.max_wall_s stopped it
+    answers = None
+    if teacher is not None:
+        answers = out_of_fold_answers(members, folds, distill[1], fit_set, calibration_set, out, progress)
+        if answers is None:
+            return None  # a teacher's train.max_wall_s stopped it
     out.mkdir(parents=True, exist_ok=True)
     max_wall = tcfg.get("max_wall_s")
     session_start = time.perf_counter()
@@ -840,8 +849,8 @@ def fit_classifier(
     history: dict[str, Any] = {"epochs": epoch, "cpu_seconds_total": round(wall_total, 1), "log": log}
     if answers is not None:
         history["teacher"] = {
-            "config": config["train"]["teacher"],
-            "folds": teacher["folds"],
+            "config": tcfg["teacher"],
+            "folds": folds,
             "cpu_seconds_total": round(answers[2], 1),
         }
     return model, history
